@@ -1,0 +1,13 @@
+"""A tiny reverse-mode autograd on NumPy arrays.
+
+``from minid3rqn import autograd as ag`` gives one flat namespace, named after
+PyTorch's functional API where it has an equivalent (``ag.conv2d(x, weight, bias,
+stride, padding)``, ``ag.grid_sample``-style ``ag.bilinear_sample``, ...).
+"""
+from .engine import Tensor, no_grad, is_grad_enabled, as_tensor, unbroadcast
+from .elementwise import (add, sub, mul, div, neg, pow, exp, log, sqrt, abs, astype,
+                          relu, elu, sigmoid, tanh, softplus, clip, where, maximum,
+                          minimum, matmul)
+from .reduce import sum, mean, max
+from .shape import reshape, transpose, getitem, concat, stack, pad, flatten
+from .gradcheck import gradcheck, GradcheckError

@@ -1,0 +1,146 @@
+"""Ops that move entries without computing with them.
+
+Their gradients move ``g`` back the same way: reshape back, transpose by the inverse
+permutation, scatter into the sliced positions, split along the concatenated axis.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from .engine import Tensor, as_tensor, check_same_dtype
+
+
+def reshape(x, shape) -> Tensor:
+    """y = x viewed with a new shape;  dL/dx = g reshaped back."""
+    x = as_tensor(x)
+    shape = tuple(int(s) for s in shape)
+    try:
+        y = x.data.reshape(shape)
+    except ValueError:
+        raise ValueError(f"reshape: cannot reshape a tensor of shape {x.shape} "
+                         f"({x.size} entries) into {shape}") from None
+    return Tensor.from_op(y, (x,), lambda g: (g.reshape(x.shape),), "reshape")
+
+
+def transpose(x, axes=None) -> Tensor:
+    """y = x with axes permuted;  dL/dx = g permuted by the inverse permutation."""
+    x = as_tensor(x)
+    if axes is None:
+        axes = tuple(reversed(range(x.ndim)))
+    axes = tuple(int(a) for a in axes)
+    if sorted(a % max(x.ndim, 1) for a in axes) != list(range(x.ndim)):
+        raise ValueError(f"transpose: axes {axes} are not a permutation of "
+                         f"0..{x.ndim - 1} for shape {x.shape}")
+    inverse = tuple(np.argsort(axes))
+    return Tensor.from_op(np.transpose(x.data, axes), (x,),
+                          lambda g: (np.transpose(g, inverse),), "transpose")
+
+
+def getitem(x, index) -> Tensor:
+    """y = x[index] (slices, ints, boolean masks, integer arrays);  dL/dx = g scattered.
+
+    With integer arrays an entry can be picked several times (a gather), so the
+    scatter adds: ``np.add.at``. This is how Q(s, a) is read off a batch of Q-values:
+    ``q[np.arange(B), actions]``.
+    """
+    x = as_tensor(x)
+    if isinstance(index, Tensor):
+        raise TypeError("getitem: index with NumPy arrays or ints, not Tensors")
+    try:
+        y = x.data[index]
+    except IndexError as e:
+        raise IndexError(f"getitem: index {index!r} does not fit shape {x.shape}: {e}") from None
+
+    def vjp(g):
+        gx = np.zeros_like(x.data)
+        np.add.at(gx, index, g)
+        return (gx,)
+
+    return Tensor.from_op(np.array(y, copy=True), (x,), vjp, "getitem")
+
+
+def concat(tensors: Sequence[Tensor], axis: int = 0) -> Tensor:
+    """y = [x_1, x_2, ...] joined along ``axis``;  dL/dx_i = the slice of g for x_i."""
+    tensors = [as_tensor(t) for t in tensors]
+    if not tensors:
+        raise ValueError("concat: needs at least one tensor")
+    check_same_dtype(tensors, "concat")
+    try:
+        y = np.concatenate([t.data for t in tensors], axis=axis)
+    except ValueError as e:
+        raise ValueError(f"concat: shapes {[t.shape for t in tensors]} do not join along "
+                         f"axis {axis}: {e}") from None
+    bounds = np.cumsum([t.shape[axis] for t in tensors])[:-1]
+    return Tensor.from_op(y, tensors, lambda g: tuple(np.split(g, bounds, axis=axis)),
+                          "concat")
+
+
+def stack(tensors: Sequence[Tensor], axis: int = 0) -> Tensor:
+    """y = x_1, x_2, ... stacked on a new ``axis``;  dL/dx_i = g taken at i on that axis."""
+    tensors = [as_tensor(t) for t in tensors]
+    if not tensors:
+        raise ValueError("stack: needs at least one tensor")
+    check_same_dtype(tensors, "stack")
+    shapes = {t.shape for t in tensors}
+    if len(shapes) > 1:
+        raise ValueError(f"stack: all tensors must have one shape; got {sorted(shapes)}")
+    y = np.stack([t.data for t in tensors], axis=axis)
+    n = len(tensors)
+    return Tensor.from_op(y, tensors,
+                          lambda g: tuple(np.take(g, i, axis=axis) for i in range(n)),
+                          "stack")
+
+
+def pad(x, pad_width, mode: str = "constant", value: float = 0.0) -> Tensor:
+    """y = x padded (NumPy's ``pad_width``: a (before, after) pair per axis).
+
+    Modes: "constant" (with ``value``) and "edge" (replicate the border).
+    dL/dx: for constant, the interior of g; for edge, the interior plus the border
+    copies folded back onto the edge entries they came from.
+    """
+    x = as_tensor(x)
+    pw = tuple((int(a), int(b)) for a, b in np.broadcast_to(np.asarray(pad_width), (x.ndim, 2)))
+    if any(a < 0 or b < 0 for a, b in pw):
+        raise ValueError(f"pad: pad_width must be non-negative; got {pw}")
+    if mode == "constant":
+        y = np.pad(x.data, pw, mode="constant", constant_values=value)
+    elif mode == "edge":
+        y = np.pad(x.data, pw, mode="edge")
+    else:
+        raise ValueError(f"pad: mode must be 'constant' or 'edge'; got {mode!r}")
+
+    def vjp(g):
+        if mode == "edge":  # fold each padded band onto the edge slice, axis by axis
+            for axis, (before, after) in enumerate(pw):
+                n = g.shape[axis]
+                if before:
+                    head = np.take(g, range(before), axis=axis).sum(axis=axis, keepdims=True)
+                    g = np.take(g, range(before, n), axis=axis).copy()
+                    _add_slice(g, axis, 0, head)
+                    n -= before
+                if after:
+                    tail = np.take(g, range(n - after, n), axis=axis).sum(axis=axis, keepdims=True)
+                    g = np.take(g, range(0, n - after), axis=axis).copy()
+                    _add_slice(g, axis, -1, tail)
+            return (g,)
+        inner = tuple(slice(a, g.shape[i] - b) for i, (a, b) in enumerate(pw))
+        return (g[inner],)
+
+    return Tensor.from_op(y, (x,), vjp, "pad")
+
+
+def _add_slice(arr: np.ndarray, axis: int, i: int, value: np.ndarray) -> None:
+    index = [slice(None)] * arr.ndim
+    index[axis] = slice(i, i + 1) if i >= 0 else slice(i, None)
+    arr[tuple(index)] += value
+
+
+def flatten(x, start_dim: int = 1) -> Tensor:
+    """y = x with the axes from ``start_dim`` on merged into one."""
+    x = as_tensor(x)
+    return reshape(x, x.shape[:start_dim] + (-1,))
+
+
+__all__ = ["reshape", "transpose", "getitem", "concat", "stack", "pad", "flatten"]

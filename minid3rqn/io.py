@@ -1,0 +1,53 @@
+"""Files on disk: ``.npz`` written atomically, read without pickle.
+
+Atomic: the arrays go to a temporary file in the same folder, which is then renamed
+over the target; a crash mid-write leaves the old file intact, never half a file.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def save_npz(path, arrays: dict[str, np.ndarray], metadata: dict | None = None) -> Path:
+    """Write ``arrays`` (and optional JSON-able ``metadata``) to ``path`` atomically."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise ValueError(f"save_npz: path must end in .npz; got {str(path)!r}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {k: np.asarray(v) for k, v in arrays.items()}
+    if metadata is not None:
+        if "__metadata__" in payload:
+            raise ValueError("save_npz: the key '__metadata__' is reserved")
+        payload["__metadata__"] = np.asarray(json.dumps(metadata))
+    for key, value in payload.items():
+        if value.dtype == object:
+            raise TypeError(f"save_npz: array {key!r} has dtype object, which would need "
+                            f"pickle; store numbers or strings only")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **payload)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    return path
+
+
+def load_npz(path) -> tuple[dict[str, np.ndarray], dict | None]:
+    """Read ``path`` written by ``save_npz``: (arrays, metadata or None)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"load_npz: no file at {str(path)!r}")
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = arrays.pop("__metadata__", None)
+    return arrays, (json.loads(str(meta)) if meta is not None else None)
