@@ -11,3 +11,7 @@ from .elementwise import (add, sub, mul, div, neg, pow, exp, log, sqrt, abs, ast
 from .reduce import sum, mean, max
 from .shape import reshape, transpose, getitem, concat, stack, pad, flatten
 from .gradcheck import gradcheck, GradcheckError
+from .lstm import lstm_cell, lstm, lstm_cell_reference
+from .sample import bilinear_sample, pixel_grid
+from .losses import l1_loss, mse_loss, huber_loss
+from .optim import SGD, Adam, clip_grad_norm

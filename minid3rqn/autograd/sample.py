@@ -65,6 +65,16 @@ def bilinear_sample(image, coords, padding_mode: str = "zeros") -> tuple[Tensor,
         (out, valid): out is an (N, C, Ho, Wo) Tensor, differentiable with respect to
         both ``image`` and ``coords``; valid is an (N, 1, Ho, Wo) NumPy array (no
         gradient), 1.0 where 0 <= x <= W-1 and 0 <= y <= H-1, else 0.0.
+
+    How it is computed: the image is framed by one pixel of zeros, so every corner
+    index is in range and no corner needs masking. x is clamped to [lo, hi] with
+    (lo, hi) = (-1, W) for "zeros" (from there on outwards the output is 0, so clamping
+    changes no value) and (0, W-1) for "border"; the gradient is 0 where clamped.
+    Then x0 = min(floor(x), hi - 1) (so x1 = x0 + 1 <= hi stays in the frame; at x = hi
+    this gives wx = 1, the same value). The same for y. One (4, N, P) array of flat
+    indices (corners 00, 01, 10, 11 of every point, P = Ho*Wo) serves every channel: the
+    forward gathers with one ``np.take`` from the (C, N*(H+2)*(W+2)) channel planes, the
+    backward scatters with one ``np.bincount`` per channel.
     """
     image, coords = _check_inputs(image, coords, padding_mode)
     n, ch, height, width = image.shape
@@ -73,63 +83,50 @@ def bilinear_sample(image, coords, padding_mode: str = "zeros") -> tuple[Tensor,
     points = ho * wo
     x = coords.data[..., 0].reshape(n, points)
     y = coords.data[..., 1].reshape(n, points)
+    if np.isnan(x).any() or np.isnan(y).any():
+        raise ValueError("bilinear_sample: coords contain NaN (a diverged depth or pose?)")
     valid = ((x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1))
     valid = valid.astype(dtype).reshape(n, 1, ho, wo)
 
-    if padding_mode == "border":
-        # d(clamped)/d(raw): 1 strictly inside, 0 where clamped (and on the edge, as torch)
-        slope_x = ((x > 0) & (x < width - 1)).astype(dtype)
-        slope_y = ((y > 0) & (y < height - 1)).astype(dtype)
-        x = np.clip(x, 0, width - 1)
-        y = np.clip(y, 0, height - 1)
-    else:
-        # Beyond one pixel outside every corner reads 0, so clamping to [-2, W+1] changes
-        # neither the output nor the gradient; it keeps floor() of huge values in range.
-        slope_x = slope_y = None
-        x = np.clip(x, -2, width + 1)
-        y = np.clip(y, -2, height + 1)
+    pad = 1 if padding_mode == "zeros" else 0            # how far outside we interpolate
+    lo_x, hi_x, lo_y, hi_y = -pad, width - 1 + pad, -pad, height - 1 + pad
+    slope_x = ((x > lo_x) & (x < hi_x)).astype(dtype)     # d(clamped x)/dx: 0 where clamped
+    slope_y = ((y > lo_y) & (y < hi_y)).astype(dtype)
+    x, y = np.clip(x, lo_x, hi_x), np.clip(y, lo_y, hi_y)
+    x0 = np.minimum(np.floor(x), hi_x - 1)
+    y0 = np.minimum(np.floor(y), hi_y - 1)
+    wx, wy = x - x0, y - y0                                 # weights of x1 and y1
+    weights = np.stack([(1 - wy) * (1 - wx), (1 - wy) * wx,  # w00, w01, w10, w11 (4, N, P)
+                        wy * (1 - wx), wy * wx])
 
-    x0f, y0f = np.floor(x), np.floor(y)
-    wx, wy = (x - x0f).astype(dtype), (y - y0f).astype(dtype)      # weights of x1, y1
-    x0, y0 = x0f.astype(np.int64), y0f.astype(np.int64)
-    x1, y1 = x0 + 1, y0 + 1
-    in_x0, in_x1 = (x0 >= 0) & (x0 < width), (x1 >= 0) & (x1 < width)
-    in_y0, in_y1 = (y0 >= 0) & (y0 < height), (y1 >= 0) & (y1 < height)
-
-    # Flat indices into image.ravel() for the four corners: ((n*C + c)*H + y)*W + x.
-    # A corner outside the image points at index 0 with weight 0, so it reads and
-    # receives nothing.
-    base = (np.arange(n)[:, None, None] * ch + np.arange(ch)[None, :, None]) * (height * width)
-    corners = []                               # (flat index (N, C, P), weight (N, P), inside)
-    for yi, in_y, wy_ in ((y0, in_y0, 1 - wy), (y1, in_y1, wy)):
-        for xi, in_x, wx_ in ((x0, in_x0, 1 - wx), (x1, in_x1, wx)):
-            inside = in_y & in_x
-            pix = np.where(inside, yi * width + xi, 0)
-            corners.append((base + pix[:, None, :], wy_ * wx_ * inside, inside))
-
-    flat_image = image.data.reshape(-1)
-    values = [np.take(flat_image, idx) * inside[:, None, :]           # I_ab, (N, C, P)
-              for idx, _, inside in corners]
-    out = sum(w[:, None, :] * v for (_, w, _), v in zip(corners, values))
-    out = out.astype(dtype, copy=False).reshape(n, ch, ho, wo)
+    fh, fw = height + 2, width + 2                          # the framed image
+    framed = np.zeros((ch, n, fh, fw), dtype)
+    framed[:, :, 1:-1, 1:-1] = image.data.transpose(1, 0, 2, 3)
+    planes = framed.reshape(ch, n * fh * fw)
+    corner00 = ((np.arange(n) * (fh * fw))[:, None] + (y0.astype(np.int64) + 1) * fw
+                + (x0.astype(np.int64) + 1))                                    # (N, P)
+    index = corner00 + np.array([0, 1, fw, fw + 1])[:, None, None]              # (4, N, P)
+    values = np.take(planes, index, axis=1)                 # I_00, I_01, I_10, I_11: (C, 4, N, P)
+    out = np.einsum("knp,cknp->ncp", weights, values).reshape(n, ch, ho, wo)
 
     def vjp(g):
         g = g.reshape(n, ch, points)
         grad_image = grad_coords = None
         if image.requires_grad:
-            index = np.concatenate([idx.reshape(-1) for idx, _, _ in corners])
-            weights = np.concatenate([(g * w[:, None, :]).reshape(-1) for _, w, _ in corners])
-            grad_image = np.bincount(index, weights=weights, minlength=flat_image.size)
-            grad_image = grad_image.astype(dtype, copy=False).reshape(image.shape)
+            flat_index = index.reshape(-1)
+            grad_framed = np.empty((ch, n, fh, fw), dtype)
+            for c in range(ch):
+                grad_framed[c] = np.bincount(flat_index, weights=(weights * g[:, c]).reshape(-1),
+                                             minlength=planes.shape[1]).reshape(n, fh, fw)
+            grad_image = grad_framed[:, :, 1:-1, 1:-1].transpose(1, 0, 2, 3)
         if coords.requires_grad:
-            i00, i01, i10, i11 = values
-            dx = ((1 - wy)[:, None, :] * (i01 - i00) + wy[:, None, :] * (i11 - i10))
-            dy = ((1 - wx)[:, None, :] * (i10 - i00) + wx[:, None, :] * (i11 - i01))
-            gx, gy = (g * dx).sum(axis=1), (g * dy).sum(axis=1)           # (N, P)
-            if slope_x is not None:
-                gx, gy = gx * slope_x, gy * slope_y
-            grad_coords = np.stack([gx, gy], axis=-1).astype(dtype, copy=False)
-            grad_coords = grad_coords.reshape(coords.shape)
+            i00, i01, i10, i11 = values.transpose(1, 2, 0, 3)  # each (N, C, P)
+            wx_, wy_ = wx[:, None, :], wy[:, None, :]
+            dx = (1 - wy_) * (i01 - i00) + wy_ * (i11 - i10)
+            dy = (1 - wx_) * (i10 - i00) + wx_ * (i11 - i01)
+            gx = np.einsum("ncp,ncp->np", g, dx) * slope_x
+            gy = np.einsum("ncp,ncp->np", g, dy) * slope_y
+            grad_coords = np.stack([gx, gy], axis=-1).reshape(coords.shape)
         return grad_image, grad_coords
 
     return Tensor.from_op(out, (image, coords), vjp, "bilinear_sample"), valid
