@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -100,12 +101,21 @@ class Camera:
                          [0.0, 0.0, 1.0]])
 
     def column_rays(self) -> np.ndarray:
-        """(W,) float64 x_n = (u - cx) / fx: the ray slope of each column."""
-        return (np.arange(self.width) - self.cx) / self.fx
+        """(W,) float64 x_n = (u - cx) / fx: the ray slope of each column (read-only)."""
+        return self._rays[0]
 
     def row_rays(self) -> np.ndarray:
-        """(H,) float64 y_n = (v - cy) / fy: the ray slope of each row (positive = down)."""
-        return (np.arange(self.height) - self.cy) / self.fy
+        """(H,) float64 y_n = (v - cy) / fy: the ray slope of each row, positive down
+        (read-only)."""
+        return self._rays[1]
+
+    @cached_property
+    def _rays(self):
+        xn = (np.arange(self.width) - self.cx) / self.fx
+        yn = (np.arange(self.height) - self.cy) / self.fy
+        xn.setflags(write=False)
+        yn.setflags(write=False)
+        return xn, yn
 
     def scaled(self, factor: int) -> "Camera":
         """The same field of view at ``factor`` times the resolution (64x208 for 2)."""

@@ -1,0 +1,248 @@
+"""Speed of the decision module: the D3RQN update against PyTorch, the framework's
+inference rate, and the time to evaluate 2000 flights.
+
+    python benchmarks/bench_rl.py                    # everything, 1 thread
+    python benchmarks/bench_rl.py --threads 2 --repeat 20
+    python benchmarks/bench_rl.py --only update
+
+Measured (medians over ``--repeat`` runs after warm-ups, float32):
+
+- ``update``: one D3RQN update as ``rl/agent.py`` runs it: batch 32 windows x 5 steps
+  (6 depth frames each, 32x104), online and target nets over the window from a zero
+  state, double-Q targets, masked Huber loss, backward, global-norm clipping, Adam.
+  The torch side is the same network (conv 4x4 s2 / 4x4 s2 / 3x3 s1, LSTM 128,
+  dueling heads) started from OUR weights; the script checks that both losses agree
+  before timing. Target: ours <= 2x torch.
+- ``framework_hz``: one flight, one step at a time: render RGB -> DispNet depth ->
+  D3RQN step with carried state (the paper's "whole framework", > 15 Hz on a GPU;
+  target >= 100 Hz here). Needs ``minid3rqn/models/depth_basic.npz`` (else GT depth,
+  reported as such).
+- ``eval_2000``: ``evaluate_policy`` with the D3RQN on 2000 flights x 50 steps, GT
+  depth (and predicted depth if a depth model is shipped): seconds per model and
+  scenario (target <= 120 s). ``--eval-flights`` scales it down for a quick look
+  (the result is then extrapolated linearly and marked so).
+
+Threads: the script re-runs itself in a child with OMP/OPENBLAS/MKL_NUM_THREADS set
+before NumPy loads (and ``torch.set_num_threads``). Output: one JSON line per part.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _median_time(fn, repeat: int, warmup: int = 2) -> float:
+    import numpy as np
+    for _ in range(warmup):
+        fn()
+    ts = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
+def bench_update(repeat: int, threads: int) -> dict:
+    import numpy as np
+    from minid3rqn.nets.qnet import QNetConfig
+    from minid3rqn.rl.agent import Agent, AgentConfig
+    from minid3rqn.rl.replay import SequenceBatch
+
+    rng = np.random.default_rng(0)
+    L, B = 5, 32
+    batch = SequenceBatch(rng.random((L + 1, B, 1, 32, 104)).astype(np.float32),
+                          rng.integers(5, size=(L, B)), rng.random((L, B)).astype(np.float32) * 3,
+                          (rng.random((L, B)) < 0.1).astype(np.float32),
+                          np.ones((L, B), np.float32))
+    agent = Agent(QNetConfig(), AgentConfig(), rng=0)
+    loss_ours, _ = agent.loss(batch)
+    try:
+        import torch
+    except ImportError:
+        torch = None
+    if torch is not None:          # copy the weights before our updates change them
+        torch.set_num_threads(threads)
+        tnet, ttgt = _torch_qnet(agent.online, torch), _torch_qnet(agent.target, torch)
+    out = {"part": "update", "threads": threads, "batch": f"{B}x{L}",
+           "ours_ms": 1000 * _median_time(lambda: agent.update(batch), repeat)}
+    if torch is None:
+        out["torch_ms"] = None
+        return out
+    opt = torch.optim.Adam(tnet.parameters(), lr=agent.config.lr)
+    obs = torch.from_numpy(batch.obs)
+    acts = torch.from_numpy(batch.actions)
+    rew = torch.from_numpy(batch.rewards * agent.config.reward_scale)
+    term = torch.from_numpy(batch.terminals)
+    mask = torch.from_numpy(batch.mask)
+    gamma = agent.config.gamma
+
+    def torch_loss():
+        q = tnet(obs)
+        with torch.no_grad():
+            qt = ttgt(obs)
+            best = q[1:].argmax(-1, keepdim=True)
+            y = rew + gamma * (1 - term) * qt[1:].gather(-1, best)[..., 0]
+        qsa = q[:-1].gather(-1, acts[..., None])[..., 0]
+        per = torch.nn.functional.huber_loss(qsa, y, reduction="none", delta=1.0)
+        return (per * mask).sum() / mask.sum()
+
+    ref = float(torch_loss())
+    if abs(ref - float(loss_ours.data)) > 1e-4 * max(1.0, abs(ref)):
+        raise AssertionError(f"torch loss {ref} != ours {float(loss_ours.data)}")
+
+    def torch_update():
+        loss = torch_loss()
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(tnet.parameters(), agent.config.grad_clip)
+        opt.step()
+
+    out["torch_ms"] = 1000 * _median_time(torch_update, repeat)
+    out["ratio"] = out["ours_ms"] / out["torch_ms"]
+    out["losses_agree"] = True
+    return out
+
+
+def _torch_qnet(net, torch):
+    """The same QNet in torch, with our weights copied in."""
+    nn = torch.nn
+    cfg = net.config
+
+    class TQ(nn.Module):
+        def __init__(self):
+            super().__init__()
+            convs, c = [], cfg.in_channels
+            for out, k, s in cfg.convs:
+                convs.append(nn.Conv2d(c, out, k, s))
+                c = out
+            self.convs = nn.ModuleList(convs)
+            self.lstm = nn.LSTM(net.n_features, cfg.width)
+            self.value = nn.Linear(cfg.width, 1)
+            self.adv = nn.Linear(cfg.width, cfg.n_actions)
+
+        def forward(self, x):
+            T, B = x.shape[:2]
+            z = x.reshape((T * B,) + tuple(x.shape[2:]))
+            for conv in self.convs:
+                z = torch.relu(conv(z))
+            z = z.reshape(T, B, -1)
+            z, _ = self.lstm(z)
+            a = self.adv(z)
+            return self.value(z) + a - a.mean(-1, keepdim=True)
+
+    t = TQ()
+    with torch.no_grad():
+        for conv, ours in zip(t.convs, net.convs):
+            conv.weight.copy_(torch.from_numpy(ours.weight.data))
+            conv.bias.copy_(torch.from_numpy(ours.bias.data))
+        t.lstm.weight_ih_l0.copy_(torch.from_numpy(net.core.weight_ih.data))
+        t.lstm.weight_hh_l0.copy_(torch.from_numpy(net.core.weight_hh.data))
+        t.lstm.bias_ih_l0.copy_(torch.from_numpy(net.core.bias.data))
+        t.lstm.bias_hh_l0.zero_()
+        t.value.weight.copy_(torch.from_numpy(net.value.weight.data))
+        t.value.bias.copy_(torch.from_numpy(net.value.bias.data))
+        t.adv.weight.copy_(torch.from_numpy(net.advantage.weight.data))
+        t.adv.bias.copy_(torch.from_numpy(net.advantage.bias.data))
+    return t
+
+
+def _qnet_model():
+    from minid3rqn.rl.commands import SHIPPED_QNET
+    from minid3rqn.rl.policies import QNetPolicy
+    from minid3rqn.nets.qnet import QNet, QNetConfig
+    if SHIPPED_QNET.exists():
+        return QNetPolicy.load(SHIPPED_QNET, "D3RQN"), str(SHIPPED_QNET)
+    return QNetPolicy(QNet(QNetConfig(), rng=0), "D3RQN (untrained)"), "untrained"
+
+
+def bench_framework(repeat: int, threads: int) -> dict:
+    import numpy as np
+    from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
+    from minid3rqn.rl.flights import Flights
+    from minid3rqn.world import render_batch
+    policy, model = _qnet_model()
+    depth_path = shipped_depth_model("basic")
+    est = load_depth_estimator(depth_path) if depth_path.exists() else None
+    fl = Flights("basic", 1, seed=0, depth="pred" if est else "gt", depth_estimator=est,
+                 autoreset=True)
+    fl.reset()
+    policy.reset(1)
+
+    def one_step():
+        rgb, gt = render_batch(fl.batch, fl.poses, fl.camera)
+        depth = est.predict(rgb) if est else gt
+        frames = np.clip(depth, 0, fl.cfg.max_depth) / fl.cfg.max_depth
+        a = policy.act({"frames": frames})
+        fl.step(a)
+
+    n = max(20, repeat * 5)
+    for _ in range(5):
+        one_step()
+    t = time.perf_counter()
+    for _ in range(n):
+        one_step()
+    dt = (time.perf_counter() - t) / n
+    return {"part": "framework_hz", "threads": threads, "hz": 1.0 / dt,
+            "depth": "DispNet" if est else "GT (no shipped depth model)", "model": model,
+            "note": "render + depth + Q step + world step, one flight, batch 1"}
+
+
+def bench_eval(flights: int, threads: int) -> list:
+    from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
+    from minid3rqn.rl.evaluate import evaluate_policy
+    policy, model = _qnet_model()
+    outs = []
+    modes = [("gt", None)]
+    if shipped_depth_model("basic").exists():
+        modes.append(("pred", load_depth_estimator(shipped_depth_model("basic"))))
+    for depth, est in modes:
+        res = evaluate_policy(policy, "basic", n_flights=flights, depth=depth,
+                              depth_estimator=est, progress=False)
+        outs.append({"part": "eval_2000", "threads": threads, "depth": depth,
+                     "flights": flights, "seconds": res.seconds,
+                     "seconds_per_2000": res.seconds * 2000 / flights,
+                     "extrapolated": flights != 2000, "rate": res.rate, "model": model})
+    return outs
+
+
+def child(args) -> None:
+    sys.path.insert(0, ROOT)
+    parts = args.only.split(",") if args.only else ["update", "framework", "eval"]
+    if "update" in parts:
+        print(json.dumps(bench_update(args.repeat, args.threads)), flush=True)
+    if "framework" in parts:
+        print(json.dumps(bench_framework(args.repeat, args.threads)), flush=True)
+    if "eval" in parts:
+        for row in bench_eval(args.eval_flights, args.threads):
+            print(json.dumps(row), flush=True)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--repeat", type=int, default=10)
+    p.add_argument("--only", default=None, help="comma list of update,framework,eval")
+    p.add_argument("--eval-flights", type=int, default=2000)
+    p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.child:
+        child(args)
+        return
+    env = dict(os.environ, OMP_NUM_THREADS=str(args.threads),
+               OPENBLAS_NUM_THREADS=str(args.threads), MKL_NUM_THREADS=str(args.threads))
+    cmd = [sys.executable, os.path.abspath(__file__), "--child", "--threads", str(args.threads),
+           "--repeat", str(args.repeat), "--eval-flights", str(args.eval_flights)]
+    if args.only:
+        cmd += ["--only", args.only]
+    sys.exit(subprocess.run(cmd, env=env).returncode)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,124 @@
+"""Speed of the world: rendering, ray casting against pymunk, env steps, batched steps.
+
+Run (numbers in docs/world.md come from this command):
+
+    OMP_NUM_THREADS=1 python benchmarks/bench_world.py --seed 0
+
+Each figure is the best of ``--repeats`` timed runs (wall clock, one process, one core),
+which filters out interruptions by other processes on a shared machine.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import pymunk
+
+from minid3rqn.world import (Camera, DroneEnv, VecDroneEnv, make_scene, render, render_batch,
+                             sample_start_pose)
+from minid3rqn.world.renderer import cast_columns
+
+
+def best_time(fn, n: int, repeats: int) -> float:
+    """Seconds per call: the best of ``repeats`` runs of ``n`` calls."""
+    best = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(n):
+            fn()
+        best = min(best, (time.perf_counter() - start) / n)
+    return best
+
+
+def pymunk_depth_row(scene, pose, xn, reach=200.0):
+    """The column depths of one frame by a Python loop of pymunk segment queries."""
+    f = np.array([np.cos(pose[2]), np.sin(pose[2])])
+    g = np.array([np.sin(pose[2]), -np.cos(pose[2])])
+    start = (float(pose[0]), float(pose[1]))
+    out = np.empty(len(xn))
+    for u, x in enumerate(xn):
+        end = pose[:2] + reach * (f + x * g)
+        hit = scene.space.segment_query_first(start, (float(end[0]), float(end[1])), 0.0,
+                                              pymunk.ShapeFilter())
+        out[u] = hit.alpha * reach
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--scenario", default="basic")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--n-envs", type=int, default=100)
+    parser.add_argument("--quick", action="store_true", help="fewer iterations (a smoke run)")
+    args = parser.parse_args(argv)
+    k = 0.1 if args.quick else 1.0
+    reps = 2 if args.quick else args.repeats
+    rng = np.random.default_rng(args.seed)
+    scene = make_scene(args.scenario, args.seed)
+    poses = np.stack([sample_start_pose(scene, rng) for _ in range(16)])
+    rows = []
+
+    for cam in (Camera(32, 104), Camera(64, 208)):
+        it = iter(range(10 ** 9))
+        sec = best_time(lambda: render(scene, poses[next(it) % 16], cam), int(400 * k) or 5, reps)
+        rows.append((f"render RGB + depth, 1 world, {cam.height}x{cam.width}", 1 / sec, sec))
+
+    cam = Camera()
+    xn = cam.column_rays()
+    batch = scene.batch()
+    it = iter(range(10 ** 9))
+    sec_cast = best_time(lambda: cast_columns(batch, poses[next(it) % 16][None], xn),
+                         int(400 * k) or 5, reps)
+    rows.append(("ray cast only (104 column rays), NumPy", 1 / sec_cast, sec_cast))
+    it = iter(range(10 ** 9))
+    sec_pm = best_time(lambda: pymunk_depth_row(scene, poses[next(it) % 16], xn),
+                       int(100 * k) or 5, reps)
+    rows.append(("same 104 rays, Python loop of pymunk segment_query_first", 1 / sec_pm, sec_pm))
+    sec_render = rows[0][2]
+    many = np.stack([sample_start_pose(scene, rng) for _ in range(256)])
+    sec_cast_b = best_time(lambda: cast_columns(batch, many, xn), max(2, int(10 * k)), reps) / 256
+    rows.append(("ray cast only, 256 poses per call, NumPy (per frame)", 1 / sec_cast_b,
+                 sec_cast_b))
+    sec_batch1 = best_time(lambda: render_batch(scene, many[:100], cam), max(2, int(10 * k)),
+                           reps) / 100
+    rows.append(("render_batch, 100 poses in 1 world, 32x104 (per frame)", 1 / sec_batch1,
+                 sec_batch1))
+
+    # Worlds are kept across episodes here (episodes_per_world), so that the figures time
+    # stepping and rendering, not world generation (timed on its own below).
+    keep = 10 ** 9
+    env = DroneEnv(args.scenario, seed=args.seed, episodes_per_world=keep)
+    env.reset()
+    act = np.random.default_rng(args.seed)
+
+    def single_step():
+        if env.step(int(act.integers(5)))[2:4] != (False, False):
+            env.reset()
+    sec_single = best_time(single_step, int(200 * k) or 5, reps)
+    rows.append(("DroneEnv.step (pymunk distances + render), 1 flight", 1 / sec_single, sec_single))
+
+    n = args.n_envs
+    vec = VecDroneEnv(n, args.scenario, seed=args.seed, autoreset=True, episodes_per_world=keep)
+    vec.reset()
+    sec_vec = best_time(lambda: vec.step(act.integers(0, 5, n)), max(2, int(20 * k)), reps)
+    rows.append((f"VecDroneEnv.step, {n} flights (per frame)", n / sec_vec, sec_vec / n))
+
+    seeds = iter(range(10 ** 6))
+    sec_gen = best_time(lambda: make_scene(args.scenario, next(seeds)), int(20 * k) or 3, reps)
+    rows.append((f"make_scene({args.scenario!r}) (world generation)", 1 / sec_gen, sec_gen))
+
+    print(f"scenario {args.scenario!r}, seed {args.seed}, best of {reps} runs\n")
+    print("| measurement | frames/s | ms per frame |")
+    print("|---|---:|---:|")
+    for name, fps, sec in rows:
+        print(f"| {name} | {fps:,.0f} | {1e3 * sec:.3f} |")
+    print(f"\nrender vs pymunk ray loop: {sec_pm / sec_render:.1f}x faster "
+          f"(ray casting alone: {sec_pm / sec_cast:.1f}x; batched ray casting: "
+          f"{sec_pm / sec_cast_b:.1f}x; batched render: {sec_pm / sec_batch1:.1f}x)")
+    print(f"batched step vs single steps, per frame: {sec_single / (sec_vec / n):.1f}x faster")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,38 @@
+"""Success rates with 95% Wilson intervals: Straight, Random, Reactive and a Q-net.
+
+Every policy flies the same fresh test worlds (seeds disjoint from training), all
+flights of a chunk stepped together. The paper's protocol is 2000 flights of 50 steps:
+
+    python -m minid3rqn evaluate straight random reactive oracle \
+        minid3rqn/models/d3rqn_basic.npz --flights 2000
+
+    python examples/05_evaluate.py [--smoke] [--flights N] [--model PATH]
+"""
+import argparse
+from pathlib import Path
+
+from minid3rqn.rl.commands import SHIPPED_QNET, make_policy
+from minid3rqn.rl.evaluate import evaluate_policy
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--smoke", action="store_true")
+    p.add_argument("--flights", type=int, default=200)
+    p.add_argument("--model", default=str(SHIPPED_QNET))
+    p.add_argument("--scenario", default="basic")
+    p.add_argument("--out", default=None, help="unused; accepted for symmetry with 04")
+    args = p.parse_args()
+    n = 8 if args.smoke else args.flights
+    specs = ["straight", "random", "reactive"]
+    if Path(args.model).exists():
+        specs.append(args.model)
+    print(f"{n} flights of 50 steps in fresh '{args.scenario}' worlds (GT depth)")
+    for spec in specs:
+        res = evaluate_policy(make_policy(spec), args.scenario, n_flights=n,
+                              max_steps=20 if args.smoke else 50, progress=False)
+        print("  " + res.line())
+
+
+if __name__ == "__main__":
+    main()

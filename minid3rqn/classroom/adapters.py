@@ -1,0 +1,115 @@
+"""Thin adapters that plug a student's change into the library's training code.
+
+The exercises change one thing at a time: the reward, the action table, the camera, the
+TD target, the photometric error. The library takes some of these as arguments
+(``DroneEnv(actions=..., reward_fn=...)``, ``Flights(camera=..., actions=...)``) but
+its training and evaluation loops build their flights themselves. The adapters below
+swap, for the duration of a ``with`` block only, the one name that the loop looks up:
+
+    with classroom_flights(actions=table, camera=cam, reward_fn=reward):
+        Trainer(cfg, out).run()               # rl.train builds ClassroomFlights
+        evaluate_policy(policy, ...)          # and so does rl.evaluate
+    with td_target(my_target):                # rl.agent's double-Q target -> yours
+        ...
+    with photometric_error(my_error):         # depth.losses' photometric error -> yours
+        ...
+
+Everything is restored when the block ends, also on an error.
+"""
+from __future__ import annotations
+
+import contextlib
+import importlib
+import inspect
+
+import numpy as np
+
+
+@contextlib.contextmanager
+def patched(module_name: str, attr: str, value):
+    """Temporarily set ``module.attr = value`` (the attribute must exist)."""
+    module = importlib.import_module(module_name)
+    if not hasattr(module, attr):
+        raise RuntimeError(f"classroom adapter: {module_name} has no attribute {attr!r} any "
+                           f"more; update minid3rqn/classroom/adapters.py")
+    old = getattr(module, attr)
+    setattr(module, attr, value)
+    try:
+        yield
+    finally:
+        setattr(module, attr, old)
+
+
+def accepts_yaw_rate(reward_fn) -> bool:
+    """Whether ``reward_fn`` takes a third argument (the yaw rate of the action flown)."""
+    try:
+        params = list(inspect.signature(reward_fn).parameters.values())
+    except (TypeError, ValueError):
+        return False
+    if any(p.kind == p.VAR_POSITIONAL for p in params):
+        return True
+    positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    return len(positional) >= 3
+
+
+def call_reward(reward_fn, d_nearest, collided, yaw_rate):
+    """reward_fn(d, collided, yaw_rate) if it takes the yaw rate, else reward_fn(d, collided)."""
+    if accepts_yaw_rate(reward_fn):
+        return reward_fn(d_nearest, collided, yaw_rate)
+    return reward_fn(d_nearest, collided)
+
+
+@contextlib.contextmanager
+def classroom_flights(actions=None, camera=None, reward_fn=None):
+    """Inside the block, training (rl.train) and evaluation (rl.evaluate) fly
+    ``ClassroomFlights`` with these actions, camera and reward (None: the library's)."""
+
+    from .flights import ClassroomFlights
+
+    def make(*args, **kwargs):
+        if actions is not None:
+            kwargs.setdefault("actions", np.asarray(actions, dtype=np.float64))
+        if camera is not None:
+            kwargs.setdefault("camera", camera)
+        return ClassroomFlights(*args, reward_fn=reward_fn, **kwargs)
+
+    with contextlib.ExitStack() as stack:
+        for module in ("minid3rqn.rl.train", "minid3rqn.rl.evaluate"):
+            stack.enter_context(patched(module, "Flights", make))
+        yield make
+
+
+@contextlib.contextmanager
+def td_target(fn):
+    """Inside the block the agent's update uses ``fn(q_online_next, q_target_next,
+    rewards, terminals, gamma) -> y`` instead of the double-Q target (None: unchanged)."""
+    if fn is None:
+        yield
+        return
+
+    def target(q_online_next, q_target_next, rewards, terminals, gamma):
+        y = fn(np.asarray(q_online_next), np.asarray(q_target_next), np.asarray(rewards),
+               np.asarray(terminals), gamma)
+        return np.asarray(y, dtype=np.float32)
+
+    with patched("minid3rqn.rl.agent", "double_q_targets", target):
+        yield
+
+
+@contextlib.contextmanager
+def photometric_error(fn):
+    """Inside the block the view-synthesis loss uses ``fn(pred, target) -> (N, 1, H, W)``
+    as its per-pixel photometric error (None: unchanged)."""
+    if fn is None:
+        yield
+        return
+
+    def error(pred, target, ssim_weight=None):
+        return fn(pred, target)
+
+    with patched("minid3rqn.depth.losses", "photometric_error", error):
+        yield
+
+
+__all__ = ["classroom_flights", "td_target", "photometric_error",
+           "accepts_yaw_rate", "call_reward", "patched"]

@@ -1,0 +1,228 @@
+"""Command-line hooks: ``collect``, ``train-depth``, ``eval-depth``.
+
+    python -m minid3rqn collect --scenario basic --frames 5000 --seed 0
+    python -m minid3rqn train-depth --scenario basic --seed 0
+    python -m minid3rqn eval-depth --model minid3rqn/models/depth_basic.npz --scenario basic
+
+Files, unless given: ``runs/depth/<scenario>/train.npz`` (seed s) and ``test.npz``
+(held-out flights in other scenes, seed s + 1000), ``checkpoint.npz``, ``model.npz``,
+``results.json`` and ``pictures.png`` in the same folder. ``train-depth`` collects the
+frames it needs when the files are missing, so one command reproduces a result, and
+``--scenario channel`` (or intersections, corners) is the scenario transfer: the same
+command retrains the depth network on that scenario's frames.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+RUNS = Path("runs/depth")
+TEST_SEED_OFFSET = 1000
+
+
+def _paths(args) -> dict:
+    folder = Path(getattr(args, "dir", None) or RUNS / args.scenario)
+    return {"dir": folder, "train": Path(getattr(args, "data", None) or folder / "train.npz"),
+            "test": Path(getattr(args, "test_data", None) or folder / "test.npz"),
+            "checkpoint": folder / "checkpoint.npz",
+            "model": Path(getattr(args, "out", None) or folder / "model.npz")}
+
+
+def _command_line(args, name: str) -> str:
+    """The command that reproduces this run, every option spelled out."""
+    parts = ["python -m minid3rqn", name]
+    for key, value in vars(args).items():
+        if key.startswith("_") or key == "command" or value is None or value is False:
+            continue
+        flag = "--" + key.replace("_", "-")
+        parts.append(flag if value is True else f"{flag} {value}")
+    return " ".join(parts)
+
+
+# -- collect -----------------------------------------------------------------------------
+def add_arguments_collect(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="basic",
+                   help="basic | channel | intersections | corners")
+    p.add_argument("--frames", type=int, default=5000, help="frames to collect (paper: 5000)")
+    p.add_argument("--frames-per-flight", type=int, default=50)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=None, help="output .npz (default runs/depth/<scenario>/"
+                   "train.npz)")
+
+
+def run_collect(args) -> int:
+    from .data import collect, save_sequence
+    out = Path(args.out or RUNS / args.scenario / "train.npz")
+    t0 = time.time()
+    data = collect(args.scenario, args.frames, args.frames_per_flight, args.seed)
+    save_sequence(out, data, {"scenario": args.scenario, "seed": args.seed,
+                              "command": _command_line(args, "collect")})
+    print(f"collect: {len(data['rgb'])} frames in {int(data['flight'].max()) + 1} flights "
+          f"-> {out} ({time.time() - t0:.1f} s)")
+    return 0
+
+
+def _ensure_data(path: Path, scenario: str, frames: int, seed: int, fpf: int = 50):
+    from .data import collect, load_sequence, save_sequence
+    if not path.is_file():
+        data = collect(scenario, frames, fpf, seed)
+        save_sequence(path, data, {"scenario": scenario, "seed": seed,
+                                   "command": f"python -m minid3rqn collect --scenario "
+                                              f"{scenario} --frames {frames} --seed {seed} "
+                                              f"--out {path}"})
+    return load_sequence(path)
+
+
+# -- train-depth ---------------------------------------------------------------------------
+def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
+    from .train import TrainConfig
+    d = TrainConfig()
+    p.add_argument("--scenario", default="basic")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--frames", type=int, default=5000, help="training frames to collect")
+    p.add_argument("--test-frames", type=int, default=500, help="held-out frames to collect")
+    p.add_argument("--iterations", type=int, default=d.iterations)
+    p.add_argument("--batch-size", type=int, default=d.batch_size)
+    p.add_argument("--lr", type=float, default=d.lr)
+    p.add_argument("--ssim", type=float, default=d.loss.ssim_weight,
+                   help="SSIM weight alpha (0: plain L1)")
+    p.add_argument("--smooth", type=float, default=d.loss.smooth_weight)
+    p.add_argument("--speed-weight", type=float, default=d.loss.speed_weight,
+                   help="weight of the known-speed term (0 disables it)")
+    p.add_argument("--pose-dof", type=int, default=d.pose_dof, choices=(3, 6),
+                   help="6: full pose; 3: planar (sideways, forward, yaw)")
+    p.add_argument("--pose-init-forward", type=float, default=d.pose_init_forward,
+                   help="PoseNet starts at this forward motion per frame (m); <= 0: at 0")
+    p.add_argument("--no-edge-aware", action="store_true")
+    p.add_argument("--no-min-reprojection", action="store_true")
+    p.add_argument("--no-automask", action="store_true")
+    p.add_argument("--no-flip", action="store_true")
+    p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every)
+    p.add_argument("--resume", action="store_true",
+                   help="continue from the folder's checkpoint.npz if present")
+    p.add_argument("--init-from", default=None,
+                   help="fine-tune: start from this checkpoint's DispNet + PoseNet weights "
+                        "(e.g. runs/depth/basic/checkpoint.npz)")
+    p.add_argument("--dir", default=None, help="run folder (default runs/depth/<scenario>)")
+    p.add_argument("--data", default=None, help="training .npz (collected if missing)")
+    p.add_argument("--test-data", default=None, help="held-out .npz (collected if missing)")
+    p.add_argument("--out", default=None, help="model file (default <dir>/model.npz)")
+    p.add_argument("--ship", action="store_true",
+                   help="also copy the model to minid3rqn/models/depth_<scenario>.npz/.json")
+    p.add_argument("--smoke", action="store_true", help="tiny run (seconds), for tests")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def config_from_args(args):
+    from .losses import LossConfig
+    from .train import TrainConfig
+    loss = LossConfig(ssim_weight=args.ssim, smooth_weight=args.smooth,
+                      edge_aware=not args.no_edge_aware,
+                      min_reprojection=not args.no_min_reprojection,
+                      automask=not args.no_automask, speed_weight=args.speed_weight)
+    init = args.pose_init_forward if args.pose_init_forward and args.pose_init_forward > 0 \
+        else None
+    return TrainConfig(iterations=args.iterations, batch_size=args.batch_size, lr=args.lr,
+                       seed=args.seed, checkpoint_every=args.checkpoint_every,
+                       flip=not args.no_flip, pose_dof=args.pose_dof,
+                       pose_init_forward=init, loss=loss)
+
+
+def run_train_depth(args) -> int:
+    from .evaluate import DepthEstimator, comparison_picture, evaluate
+    from .train import Trainer
+    if args.smoke:
+        args.frames, args.test_frames = min(args.frames, 60), min(args.test_frames, 30)
+        args.iterations = min(args.iterations, 3)
+        args.dir = args.dir or str(RUNS / f"smoke_{args.scenario}")
+    paths = _paths(args)
+    paths["dir"].mkdir(parents=True, exist_ok=True)
+    cfg = config_from_args(args)
+    t0 = time.time()
+    train = _ensure_data(paths["train"], args.scenario, args.frames, args.seed)
+    test = _ensure_data(paths["test"], args.scenario, args.test_frames,
+                        args.seed + TEST_SEED_OFFSET)
+    t_data = time.time() - t0
+    trainer = Trainer(train, cfg, checkpoint=paths["checkpoint"], resume=args.resume)
+    if trainer.iteration:
+        print(f"train-depth: resuming at iteration {trainer.iteration}")
+    elif args.init_from:
+        trainer.init_from(args.init_from)
+    t1 = time.time()
+    trainer.run(progress=not args.quiet)
+    t_train = time.time() - t1
+    estimator = DepthEstimator(trainer.disp, trainer.speed_scale())
+    results = evaluate(estimator, test, posenet=trainer.pose)
+    meta = {"command": _command_line(args, "train-depth"), "seed": args.seed, "scenario": args.scenario,
+            "config": cfg.to_dict(), "results": results,
+            "train_frames": len(train), "test_frames": len(test),
+            "train_seconds": round(t_train, 1), "data_seconds": round(t_data, 1),
+            "history": trainer.history[-1:] if trainer.history else []}
+    estimator.save(paths["model"], meta)
+    (paths["dir"] / "results.json").write_text(json.dumps(meta, indent=2))
+    rows = np.linspace(0, len(test) - 1, 6).astype(int)
+    comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]), test.depth[rows],
+                       paths["dir"] / "pictures.png")
+    if args.ship:
+        models = Path(__file__).resolve().parent.parent / "models"
+        models.mkdir(exist_ok=True)
+        shutil.copyfile(paths["model"], models / f"depth_{args.scenario}.npz")
+        (models / f"depth_{args.scenario}.json").write_text(json.dumps(
+            {k: v for k, v in meta.items() if k != "history"}, indent=2))
+    print(json.dumps({"scenario": args.scenario, "seed": args.seed,
+                      "train_seconds": round(t_train, 1),
+                      **{k: round(v, 4) for k, v in results.items()}}))
+    return 0
+
+
+# -- eval-depth ------------------------------------------------------------------------------
+def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", default="minid3rqn/models/depth_basic.npz")
+    p.add_argument("--scenario", default="basic")
+    p.add_argument("--seed", type=int, default=0,
+                   help="the training seed: held-out frames use seed + 1000")
+    p.add_argument("--test-frames", type=int, default=500)
+    p.add_argument("--test-data", default=None)
+    p.add_argument("--pictures", default=None, help="PNG: RGB | predicted | GT rows")
+    p.add_argument("--json", default=None, help="write the metrics here")
+
+
+def run_eval_depth(args) -> int:
+    from .evaluate import DepthEstimator, comparison_picture, evaluate
+    estimator = DepthEstimator.load(args.model)
+    path = Path(args.test_data or RUNS / args.scenario / "test.npz")
+    test = _ensure_data(path, args.scenario, args.test_frames, args.seed + TEST_SEED_OFFSET)
+    t0 = time.time()
+    results = evaluate(estimator, test)
+    results["seconds"] = round(time.time() - t0, 2)
+    if args.pictures:
+        rows = np.linspace(0, len(test) - 1, 6).astype(int)
+        comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]),
+                           test.depth[rows], args.pictures)
+    text = json.dumps({k: (round(v, 4) if isinstance(v, float) else v)
+                       for k, v in results.items()})
+    if args.json:
+        Path(args.json).write_text(text)
+    print(text)
+    return 0
+
+
+def main(argv=None) -> int:
+    """``python -m minid3rqn.depth.commands <collect|train-depth|eval-depth> ...``."""
+    parser = argparse.ArgumentParser(prog="python -m minid3rqn.depth.commands")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name in ("collect", "train-depth", "eval-depth"):
+        sp = sub.add_parser(name)
+        globals()[f"add_arguments_{name.replace('-', '_')}"](sp)
+    args = parser.parse_args(argv)
+    return globals()[f"run_{args.command.replace('-', '_')}"](args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

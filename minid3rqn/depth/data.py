@@ -1,0 +1,255 @@
+"""Image sequences for self-supervised depth: scripted flights, storage, triplets.
+
+``collect`` flies a scripted pilot through scenes of a scenario, as the paper's
+"manually controlled" flights: forward at 2 m/s, one frame every 0.4 s, turning to
+keep clear of obstacles and varying its turns at random. Each frame is stored with
+its ground-truth pose and depth, which only the evaluation reads.
+
+A sequence file (``.npz``, written atomically) holds
+
+    rgb     (F, H, W, 3) uint8     the frames
+    depth   (F, H, W) float32      GT pinhole depth (metres)          evaluation only
+    pose    (F, 3) float64         GT (x, y, yaw) of the drone         evaluation only
+    flight  (F,) int32             which flight a frame belongs to (frames of a flight
+                                   are consecutive, in time order)
+    K       (3, 3) float64         the camera intrinsics
+
+plus JSON metadata (scenario, seed, speed, dt, camera, command).
+
+Training samples are triplets (previous, target, next) of consecutive frames of ONE
+flight; ``triplet_indices`` lists the targets, ``Sequence.triplet`` refuses frames
+that straddle two flights.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..io import load_npz, save_npz
+
+SPEED = 2.0          # m/s, the paper's forward speed
+FRAME_DT = 0.4       # s between frames (paper, Table 2)
+SAFE = 0.5           # m: closer is a collision (paper); the pilot ends the flight there
+
+
+# -- the scripted pilot ----------------------------------------------------------------
+def _arc_points(pose, yaw_rate, horizon: float, n: int) -> np.ndarray:
+    """Positions (n, 2) along an arc flown from ``pose`` at SPEED for ``horizon`` s."""
+    from ..world.kinematics import integrate_arc
+    taus = np.linspace(horizon / n, horizon, n)
+    return integrate_arc(np.asarray(pose)[None], SPEED, yaw_rate, taus)[:, :2]
+
+
+class ScriptedPilot:
+    """Keeps clear of obstacles and varies its turns (the paper's manual flights).
+
+    Every step it scores candidate yaw rates in [-0.5, 0.5] rad/s by the smallest
+    clearance along a 2.4 s arc (and whether the arc stays in the flyable region).
+    Among the safe ones (clearance >= ``margin``) it takes the one nearest a wandering
+    preferred yaw rate, which is redrawn at random every few steps; when none is safe
+    it takes the clearest.
+    """
+
+    def __init__(self, scene, rng: np.random.Generator, margin: float = 1.0,
+                 horizon: float = 2.4):
+        self.scene, self.rng, self.margin, self.horizon = scene, rng, margin, horizon
+        self.candidates = np.linspace(-0.5, 0.5, 9)
+        self.preferred, self.hold = 0.0, 0
+
+    def __call__(self, pose) -> float:
+        from ..world.distance import nearest_distance
+        if self.hold <= 0:
+            self.preferred = float(self.rng.choice([-0.5, -0.25, 0.0, 0.0, 0.25, 0.5]))
+            self.hold = int(self.rng.integers(2, 8))
+        self.hold -= 1
+        pts = np.stack([_arc_points(pose, w, self.horizon, 12) for w in self.candidates])
+        clear = nearest_distance(self.scene, pts).min(axis=1)
+        clear = np.where(self.scene.in_region(pts).all(axis=1), clear, -1.0)
+        safe = clear >= self.margin
+        if safe.any():
+            cost = np.abs(self.candidates - self.preferred) + 10.0 * ~safe
+            return float(self.candidates[int(np.argmin(cost))])
+        return float(self.candidates[int(np.argmax(clear))])
+
+
+# -- collection ------------------------------------------------------------------------
+def _render(scene, poses, camera):
+    """(F, 3) poses -> rgb (F, H, W, 3) uint8, depth (F, H, W) float32 via the world."""
+    from ..world import render_batch
+    rgb, depth = render_batch(scene, np.asarray(poses), camera)
+    return np.asarray(rgb, dtype=np.uint8), np.asarray(depth, dtype=np.float32)
+
+
+def fly(scene, n_frames: int, rng: np.random.Generator) -> np.ndarray:
+    """One scripted flight of up to ``n_frames`` poses (fewer if it comes too close)."""
+    from ..world.distance import nearest_distance, sample_start_pose
+    from ..world.kinematics import integrate_arc
+    pilot = ScriptedPilot(scene, rng)
+    pose = sample_start_pose(scene, rng)
+    poses = [pose]
+    while len(poses) < n_frames:
+        w = pilot(pose)
+        # Check clearance along the step, every 0.1 m.
+        path = _arc_points(pose, w, FRAME_DT, 8)
+        if nearest_distance(scene, path).min() < SAFE:
+            break
+        pose = integrate_arc(pose, SPEED, w, FRAME_DT)
+        poses.append(pose)
+    return np.stack(poses)
+
+
+def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: int = 50,
+            seed: int = 0, camera=None, progress: bool = True) -> dict:
+    """Fly scripted flights in fresh scenes of ``scenario`` until ``n_frames`` frames.
+
+    Flight f flies in ``make_scene(scenario, seed=seed * 100003 + f)``; flights shorter
+    than 3 frames (no triplet) are dropped. Returns the arrays of a sequence file.
+    """
+    from ..world.camera import Camera
+    from ..world.scenarios import make_scene
+    if n_frames < 3:
+        raise ValueError(f"collect: n_frames must be >= 3 (one triplet); got {n_frames}")
+    if frames_per_flight < 3:
+        raise ValueError(f"collect: frames_per_flight must be >= 3; got {frames_per_flight}")
+    camera = camera or Camera()
+    rng = np.random.default_rng(seed)
+    rgb, depth, pose, flight = [], [], [], []
+    total, f = 0, 0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=n_frames, desc=f"collect {scenario}", unit="frame")
+    while total < n_frames:
+        scene = make_scene(scenario, seed=seed * 100003 + f)
+        poses = fly(scene, min(frames_per_flight, n_frames - total), rng)
+        f += 1
+        if len(poses) < 3:
+            continue
+        im, dp = _render(scene, poses, camera)
+        rgb.append(im), depth.append(dp), pose.append(poses)
+        flight.append(np.full(len(poses), len(flight), dtype=np.int32))
+        total += len(poses)
+        if bar is not None:
+            bar.update(len(poses))
+        if f > 20 * (n_frames // 3 + 1):
+            raise RuntimeError(f"collect: scenario {scenario!r} gives flights too short to "
+                               f"collect {n_frames} frames")
+    if bar is not None:
+        bar.close()
+    return {"rgb": np.concatenate(rgb), "depth": np.concatenate(depth),
+            "pose": np.concatenate(pose), "flight": np.concatenate(flight),
+            "K": camera.K, "camera": (camera.height, camera.width, camera.hfov_deg)}
+
+
+def save_sequence(path, data: dict, metadata: dict | None = None) -> Path:
+    arrays = {k: data[k] for k in ("rgb", "depth", "pose", "flight", "K")}
+    meta = dict(metadata or {})
+    meta.setdefault("speed", SPEED)
+    meta.setdefault("dt", FRAME_DT)
+    meta["camera"] = list(data.get("camera", ()))
+    return save_npz(path, arrays, meta)
+
+
+# -- sequences and triplets ------------------------------------------------------------
+@dataclass
+class Sequence:
+    """Frames of one or more flights, validated. See the module docstring for fields."""
+
+    rgb: np.ndarray
+    flight: np.ndarray
+    K: np.ndarray
+    depth: np.ndarray | None = None
+    pose: np.ndarray | None = None
+    meta: dict | None = None
+
+    def __post_init__(self):
+        self.rgb = np.asarray(self.rgb)
+        self.flight = np.asarray(self.flight)
+        if self.rgb.ndim != 4 or self.rgb.shape[-1] != 3 or self.rgb.dtype != np.uint8:
+            raise ValueError(f"Sequence: rgb must be uint8 (F, H, W, 3); got {self.rgb.dtype} "
+                             f"{self.rgb.shape}")
+        n = len(self.rgb)
+        if n == 0:
+            raise ValueError("Sequence: the sequence is empty (0 frames); collect frames first")
+        if self.flight.shape != (n,):
+            raise ValueError(f"Sequence: flight must be ({n},), one id per frame; got "
+                             f"{self.flight.shape}")
+        from .geometry import check_intrinsics
+        self.K = check_intrinsics(self.K, self.rgb.shape[1], self.rgb.shape[2], "Sequence: K")
+        for name in ("depth", "pose"):
+            value = getattr(self, name)
+            if value is not None and len(value) != n:
+                raise ValueError(f"Sequence: {name} has {len(value)} entries for {n} frames")
+        # A flight's frames must be consecutive: ids may only change, never come back.
+        starts = np.flatnonzero(np.diff(self.flight)) + 1
+        ids = self.flight[np.concatenate([[0], starts])]
+        if len(np.unique(ids)) != len(ids):
+            raise ValueError("Sequence: the frames of a flight must be consecutive; flight "
+                             "ids come back after another flight's frames")
+
+    def __len__(self) -> int:
+        return len(self.rgb)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.rgb.shape[1], self.rgb.shape[2]
+
+    def triplet_indices(self) -> np.ndarray:
+        return triplet_indices(self.flight)
+
+    def triplet(self, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(previous, target, next) frames around target index t, from one flight."""
+        if not 1 <= t < len(self) - 1:
+            raise IndexError(f"Sequence.triplet: target {t} needs frames {t - 1} and {t + 1}; "
+                             f"the sequence has {len(self)} frames")
+        ids = self.flight[t - 1:t + 2]
+        if not (ids[0] == ids[1] == ids[2]):
+            raise ValueError(f"Sequence.triplet: frames {t - 1}, {t}, {t + 1} come from "
+                             f"different flights {ids.tolist()}; a triplet must be three "
+                             f"consecutive frames of one flight")
+        return self.rgb[t - 1], self.rgb[t], self.rgb[t + 1]
+
+    def batch(self, targets) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Targets (B,) -> (target (B,3,H,W), [previous, next]) float32 in [0, 1]."""
+        targets = np.asarray(targets)
+        ids = self.flight[targets]
+        if targets.min() < 1 or targets.max() >= len(self) - 1:
+            raise IndexError("Sequence.batch: every target needs a previous and a next frame")
+        if not (np.all(self.flight[targets - 1] == ids) and np.all(self.flight[targets + 1] == ids)):
+            bad = targets[(self.flight[targets - 1] != ids) | (self.flight[targets + 1] != ids)]
+            raise ValueError(f"Sequence.batch: targets {bad.tolist()} have neighbours from other "
+                             f"flights; use triplet_indices() to pick targets")
+        f = lambda idx: (self.rgb[idx].transpose(0, 3, 1, 2).astype(np.float32) / 255.0)
+        return f(targets), [f(targets - 1), f(targets + 1)]
+
+    def select_flights(self, flights) -> "Sequence":
+        keep = np.isin(self.flight, np.asarray(flights))
+        return Sequence(self.rgb[keep], self.flight[keep], self.K,
+                        None if self.depth is None else self.depth[keep],
+                        None if self.pose is None else self.pose[keep], self.meta)
+
+
+def triplet_indices(flight) -> np.ndarray:
+    """Indices t whose frames t-1, t, t+1 all belong to the same flight."""
+    flight = np.asarray(flight)
+    if len(flight) < 3:
+        return np.zeros(0, dtype=np.int64)
+    same = (flight[1:-1] == flight[:-2]) & (flight[1:-1] == flight[2:])
+    return np.flatnonzero(same) + 1
+
+
+def load_sequence(path) -> Sequence:
+    arrays, meta = load_npz(path)
+    for key in ("rgb", "flight", "K"):
+        if key not in arrays:
+            raise KeyError(f"load_sequence: {str(path)!r} has no array {key!r}; write it with "
+                           f"`python -m minid3rqn collect`")
+    return Sequence(arrays["rgb"], arrays["flight"], arrays["K"], arrays.get("depth"),
+                    arrays.get("pose"), meta)
+
+
+__all__ = ["SPEED", "FRAME_DT", "ScriptedPilot", "fly", "collect", "save_sequence",
+           "Sequence", "triplet_indices", "load_sequence"]

@@ -1,0 +1,215 @@
+"""Depth inference (``DepthEstimator``) and evaluation against ground truth.
+
+Depth metrics (Eigen et al. 2014, the SfMLearner / monodepth2 protocol). For each
+image the prediction is first scaled by median(D_gt) / median(D_pred) (monocular depth
+is known only up to scale), then clipped to [min_depth, max_depth]; over all pixels:
+
+    abs rel   = mean |d - d*| / d*              sq rel = mean (d - d*)^2 / d*
+    RMSE      = sqrt(mean (d - d*)^2)           RMSE log = sqrt(mean (ln d - ln d*)^2)
+    delta_k   = fraction of pixels with max(d / d*, d* / d) < 1.25^k,  k = 1, 2, 3
+
+(d predicted, d* ground truth). The same metrics are also reported with the
+estimator's own scale (from the known flight speed, no GT): ``*_speed_scale``.
+
+Pose: for every triplet and source, the predicted T_{t->s} against the GT relative
+transform: translation error |t_pred s - t_gt| with s the per-snippet least-squares
+scale (SfMLearner's ATE on 3-frame snippets), and rotation error, the angle of
+R_pred^T R_gt in degrees.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .. import autograd as ag
+from ..io import load_npz, save_npz
+from ..nets.dispnet import DispNet
+from .data import Sequence
+from .geometry import pose_vec_to_mat
+
+METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
+
+
+class DepthEstimator:
+    """Monocular depth for the RL agent: RGB frames in, depth maps (metres) out.
+
+    Scale convention: monocular depth is known only up to a global scale. This
+    estimator fixes it once, at training time, from the drone's known forward speed
+    (0.8 m between frames, see ``train.speed_scale``), so ``predict`` returns depth in
+    approximately metres: depth = scale / disp. The scale is a constant of the model
+    file, the same for every frame, so depth maps from one model are comparable across
+    frames and episodes. Consumers that want a unit-free input can divide by a fixed
+    constant (e.g. 10 m); do not normalise per frame, which would throw away the
+    absolute nearness that obstacle avoidance needs.
+
+    Args:
+        dispnet: a trained DispNet.
+        scale: metres per unit of 1 / disp.
+        meta: free-form metadata (command, seed, results) from the model file.
+    """
+
+    def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None):
+        self.net, self.scale, self.meta = dispnet, float(scale), meta or {}
+        self.height = self.meta.get("height", 32)
+        self.width = self.meta.get("width", 104)
+
+    # -- files -----------------------------------------------------------------------
+    def save(self, path, extra: dict | None = None) -> Path:
+        meta = {"dispnet": self.net.config(), "scale": self.scale,
+                "height": self.height, "width": self.width, **(extra or {})}
+        self.meta = meta
+        state = {k: v.astype(np.float32) for k, v in self.net.state_dict().items()}
+        return save_npz(path, state, meta)
+
+    @classmethod
+    def load(cls, path) -> "DepthEstimator":
+        arrays, meta = load_npz(path)
+        if meta and "config" in meta and "iteration" in meta:       # a training checkpoint
+            from .train import TrainConfig
+            cfg = TrainConfig.from_dict(meta["config"])
+            net = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales)
+            net.load_state_dict({k[5:]: v for k, v in arrays.items() if k.startswith("disp.")})
+            # With the known-speed term the network's depth is already in metres.
+            return cls(net, 1.0, {"iteration": meta["iteration"]})
+        if not meta or "dispnet" not in meta:
+            raise ValueError(f"DepthEstimator.load: {str(path)!r} is not a depth model file "
+                             f"(no 'dispnet' metadata); write one with train-depth")
+        c = meta["dispnet"]
+        net = DispNet(tuple(c["encoder"]), tuple(c["decoder"]), c["n_scales"],
+                      c["disp_scale"], c["min_disp"], c.get("double_conv", True))
+        net.load_state_dict(arrays)
+        return cls(net, meta.get("scale", 1.0), meta)
+
+    # -- inference -------------------------------------------------------------------
+    def predict_disp(self, rgb, batch_size: int = 64) -> np.ndarray:
+        """rgb uint8 (N, H, W, 3) or (H, W, 3) -> network disparity (N, H, W) float32."""
+        rgb = np.asarray(rgb)
+        single = rgb.ndim == 3
+        if single:
+            rgb = rgb[None]
+        if rgb.ndim != 4 or rgb.shape[-1] != 3:
+            raise ValueError(f"DepthEstimator: rgb must be (N, H, W, 3) uint8; got {rgb.shape}")
+        if rgb.shape[1:3] != (self.height, self.width):
+            raise ValueError(f"DepthEstimator: the model was trained on {self.height}x"
+                             f"{self.width} images; got {rgb.shape[1]}x{rgb.shape[2]}")
+        if rgb.dtype != np.uint8:
+            raise TypeError(f"DepthEstimator: rgb must be uint8 (0..255); got {rgb.dtype}")
+        out = np.empty(rgb.shape[:3], dtype=np.float32)
+        with ag.no_grad():
+            for k in range(0, len(rgb), batch_size):
+                x = rgb[k:k + batch_size].transpose(0, 3, 1, 2).astype(np.float32) * (1 / 255.0)
+                out[k:k + batch_size] = self.net(x, scales=1)[0].data[:, 0]
+        return out[0] if single else out
+
+    def predict(self, rgb, batch_size: int = 64) -> np.ndarray:
+        """rgb uint8 (N, H, W, 3) -> depth float32 (N, H, W) in metres (see class doc)."""
+        return (self.scale / self.predict_disp(rgb, batch_size)).astype(np.float32)
+
+
+# -- metrics -----------------------------------------------------------------------------
+def depth_metrics(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
+                  median_scaling: bool = True) -> dict:
+    """The seven metrics (module docstring), averaged over images; (N, H, W) inputs."""
+    pred = np.asarray(pred, dtype=np.float64)
+    gt = np.asarray(gt, dtype=np.float64)
+    if pred.shape != gt.shape:
+        raise ValueError(f"depth_metrics: pred {pred.shape} and gt {gt.shape} differ")
+    rows = []
+    for p, g in zip(pred.reshape(len(pred), -1), gt.reshape(len(gt), -1)):
+        ok = (g > min_depth) & (g < max_depth) & np.isfinite(g)
+        p, g = p[ok], g[ok]
+        if median_scaling:
+            p = p * (np.median(g) / np.median(p))
+        p = np.clip(p, min_depth, max_depth)
+        ratio = np.maximum(p / g, g / p)
+        rows.append([np.mean(np.abs(p - g) / g), np.mean((p - g) ** 2 / g),
+                     np.sqrt(np.mean((p - g) ** 2)),
+                     np.sqrt(np.mean((np.log(p) - np.log(g)) ** 2)),
+                     np.mean(ratio < 1.25), np.mean(ratio < 1.25 ** 2),
+                     np.mean(ratio < 1.25 ** 3)])
+    return dict(zip(METRICS, np.mean(rows, axis=0).tolist()))
+
+
+def pose_errors(posenet, seq: Sequence, max_triplets: int = 500) -> dict:
+    """Translation (scale-aligned per snippet, metres) and rotation (degrees) errors."""
+    from ..world.geometry import relative_transform
+    if seq.pose is None:
+        raise ValueError("pose_errors: the sequence has no GT poses")
+    idx = seq.triplet_indices()
+    if len(idx) > max_triplets:
+        idx = idx[np.linspace(0, len(idx) - 1, max_triplets).astype(int)]
+    t_err, r_err, t_gt_norm = [], [], []
+    with ag.no_grad():
+        for k in range(0, len(idx), 64):
+            tg = idx[k:k + 64]
+            target, sources = seq.batch(tg)
+            vec = posenet(target, sources).data.astype(np.float64)              # (B, 2, 6)
+            T_pred = pose_vec_to_mat(vec.reshape(-1, 6)).data.reshape(len(tg), 2, 4, 4)
+            T_gt = np.stack([relative_transform(seq.pose[tg], seq.pose[tg + d])
+                             for d in (-1, 1)], axis=1)
+            tp, tt = T_pred[..., :3, 3], T_gt[..., :3, 3]                      # (B, 2, 3)
+            s = (tp * tt).sum(axis=(1, 2)) / np.maximum((tp * tp).sum(axis=(1, 2)), 1e-12)
+            t_err.append(np.linalg.norm(tp * s[:, None, None] - tt, axis=-1).ravel())
+            t_gt_norm.append(np.linalg.norm(tt, axis=-1).ravel())
+            R = np.einsum("bsji,bsjk->bsik", T_pred[..., :3, :3], T_gt[..., :3, :3])
+            cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1)
+            r_err.append(np.degrees(np.arccos(cos)).ravel())
+    t_err, r_err = np.concatenate(t_err), np.concatenate(r_err)
+    return {"trans_err_m": float(t_err.mean()), "trans_err_rel": float(
+        t_err.mean() / np.concatenate(t_gt_norm).mean()), "rot_err_deg": float(r_err.mean())}
+
+
+def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
+             max_frames: int | None = None) -> dict:
+    """Depth metrics (median-scaled and speed-scaled) on ``seq``; pose errors if given."""
+    if seq.depth is None:
+        raise ValueError("evaluate: the sequence has no GT depth")
+    idx = np.arange(len(seq))
+    if max_frames and len(idx) > max_frames:
+        idx = idx[np.linspace(0, len(idx) - 1, max_frames).astype(int)]
+    pred = estimator.predict(seq.rgb[idx])
+    gt = seq.depth[idx]
+    out = {"frames": int(len(idx))}
+    out.update(depth_metrics(pred, gt))
+    out.update({f"{k}_speed_scale": v for k, v in
+                depth_metrics(pred, gt, median_scaling=False).items()})
+    if posenet is not None and seq.pose is not None:
+        out.update(pose_errors(posenet, seq))
+    return out
+
+
+# -- pictures ----------------------------------------------------------------------------
+def near_far_colours(depth, lo: float, hi: float) -> np.ndarray:
+    """Depth -> RGB uint8, red near, blue far (a jet-like map on log depth)."""
+    d = np.log(np.clip(np.asarray(depth, dtype=np.float64), lo, hi))
+    t = (d - np.log(lo)) / max(np.log(hi) - np.log(lo), 1e-9)            # 0 near, 1 far
+    x = 1.0 - t                                                          # 1 near (red)
+    r = np.clip(1.5 - np.abs(4 * x - 3), 0, 1)
+    g = np.clip(1.5 - np.abs(4 * x - 2), 0, 1)
+    b = np.clip(1.5 - np.abs(4 * x - 1), 0, 1)
+    return (np.stack([r, g, b], -1) * 255 + 0.5).astype(np.uint8)
+
+
+def comparison_picture(rgb, pred, gt, path, zoom: int = 3, gap: int = 3) -> Path:
+    """Rows of RGB | predicted depth (median-scaled) | GT depth, written as a PNG."""
+    from PIL import Image
+    rows = []
+    for im, p, g in zip(rgb, pred, gt):
+        p = p * (np.median(g) / np.median(p))
+        lo, hi = max(float(np.percentile(g, 1)), 0.1), float(np.percentile(g, 99))
+        white = np.full((im.shape[0], gap, 3), 255, np.uint8)
+        rows.append(np.concatenate([im, white, near_far_colours(p, lo, hi), white,
+                                    near_far_colours(g, lo, hi)], axis=1))
+        rows.append(np.full((gap, rows[-1].shape[1], 3), 255, np.uint8))
+    img = np.concatenate(rows[:-1], axis=0)
+    img = img.repeat(zoom, 0).repeat(zoom, 1)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(img).save(path)
+    return path
+
+
+__all__ = ["METRICS", "DepthEstimator", "depth_metrics", "pose_errors", "evaluate",
+           "near_far_colours", "comparison_picture"]

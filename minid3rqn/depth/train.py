@@ -1,0 +1,247 @@
+"""The training loop: DispNet + PoseNet by view synthesis, with exact resumption.
+
+One iteration:
+
+    targets  <- B random triplet centres (rng seeded by ``seed``)
+    disps    =  DispNet(I_t)                       multi-scale disparity
+    poses    =  PoseNet(I_t, [I_t-1, I_t+1])       T_{t->s}, (B, 2, 6)
+    loss     =  view_synthesis_loss(...)           losses.py
+    Adam step on both networks
+
+Every ``checkpoint_every`` iterations the networks, Adam's moments, the sampler's RNG
+state and the log go into one ``.npz`` (written atomically); ``resume=True`` picks up
+from it and continues exactly as if never stopped. A non-finite loss stops the run
+with the iteration number.
+
+At the end the metric scale is fixed without ground truth: the drone's forward speed
+is known (2 m/s x 0.4 s = 0.8 m between frames), so
+
+    scale = 0.8 / mean |t_pred|      over the training triplets
+
+and depth = scale / disp is in metres (up to PoseNet's accuracy). ``DepthEstimator``
+applies it.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import autograd as ag
+from ..autograd.optim import Adam
+from ..io import load_npz, save_npz
+from ..nets.dispnet import DispNet
+from ..nets.posenet import PoseNet
+from .data import FRAME_DT, SPEED, Sequence
+from .losses import LossConfig, view_synthesis_loss
+
+
+@dataclass
+class TrainConfig:
+    iterations: int = 3000          # paper: 30000 at 128x416; scaled to our budget
+    batch_size: int = 4             # paper
+    lr: float = 5e-4                # paper: 5e-5; 10x trains faster here (docs/depth.md)
+    seed: int = 0
+    checkpoint_every: int = 250
+    log_every: int = 25
+    flip: bool = True               # random horizontal flips of whole triplets
+    encoder: tuple = (16, 32, 64, 96)
+    decoder: tuple = (16, 16, 32, 64)
+    n_scales: int = 4
+    init_disp: float | None = 0.5   # heads start at disp 0.5 (depth 2): log-middle of range
+    pose_scale: float = 0.1         # SfMLearner: 0.01; our frames move 0.8 m and 0.2 rad
+    pose_head_gain: float = 0.1
+    pose_dof: int = 6               # 6: SfMLearner; 3: planar (tx, tz, yaw)
+    pose_init_forward: float | None = 0.8    # start PoseNet at tz = +-0.8 m (forward flight)
+    loss: LossConfig = field(default_factory=LossConfig)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["encoder"], d["decoder"] = list(self.encoder), list(self.decoder)
+        return d
+
+    @staticmethod
+    def from_dict(d: dict) -> "TrainConfig":
+        d = dict(d)
+        d["loss"] = LossConfig(**d.get("loss", {}))
+        d["encoder"], d["decoder"] = tuple(d["encoder"]), tuple(d["decoder"])
+        return TrainConfig(**d)
+
+
+def build_nets(cfg: TrainConfig) -> tuple[DispNet, PoseNet]:
+    rng = np.random.default_rng(cfg.seed)
+    disp = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales, init_disp=cfg.init_disp, rng=rng)
+    pose = PoseNet(n_sources=2, pose_scale=cfg.pose_scale, head_gain=cfg.pose_head_gain,
+                   dof=cfg.pose_dof, rng=rng,
+                   init_tz=None if cfg.pose_init_forward is None else
+                   (cfg.pose_init_forward, -cfg.pose_init_forward))
+    return disp, pose
+
+
+class Trainer:
+    """Holds the networks, the optimizer and the sampler; ``run`` trains to the end."""
+
+    def __init__(self, sequence: Sequence, cfg: TrainConfig, checkpoint=None,
+                 resume: bool = False):
+        if not isinstance(sequence, Sequence):
+            raise TypeError(f"Trainer: sequence must be a data.Sequence; got "
+                            f"{type(sequence).__name__}")
+        self.seq, self.cfg = sequence, cfg
+        self.targets = sequence.triplet_indices()
+        if len(self.targets) == 0:
+            raise ValueError("Trainer: the sequence has no triplet (three consecutive frames "
+                             "of one flight); collect longer flights")
+        h, w = sequence.shape
+        if h % 2 ** (cfg.n_scales - 1) or w % 2 ** (cfg.n_scales - 1):
+            raise ValueError(f"Trainer: image size {h}x{w} must be divisible by "
+                             f"2^(n_scales - 1) = {2 ** (cfg.n_scales - 1)}")
+        self.disp, self.pose = build_nets(cfg)
+        self.params = self.disp.parameters() + self.pose.parameters()
+        self.opt = Adam(self.params, lr=cfg.lr)
+        self.rng = np.random.default_rng([cfg.seed, 1])
+        self.iteration = 0
+        self.history: list[dict] = []
+        self.checkpoint = Path(checkpoint) if checkpoint else None
+        if resume and self.checkpoint and self.checkpoint.is_file():
+            self.load_checkpoint(self.checkpoint)
+
+    # -- one step ------------------------------------------------------------------
+    def sample_batch(self):
+        idx = self.rng.choice(self.targets, size=self.cfg.batch_size, replace=True)
+        target, sources = self.seq.batch(idx)
+        K = self.seq.K
+        if self.cfg.flip:
+            flip = self.rng.random(self.cfg.batch_size) < 0.5
+            # Mirroring a whole triplet is another valid flight (K is symmetric:
+            # cx = (W - 1) / 2), seen in a mirrored world.
+            target = np.where(flip[:, None, None, None], target[..., ::-1], target)
+            sources = [np.where(flip[:, None, None, None], s[..., ::-1], s) for s in sources]
+        return np.ascontiguousarray(target), [np.ascontiguousarray(s) for s in sources], K
+
+    def step(self) -> dict:
+        target, sources, K = self.sample_batch()
+        disps = self.disp(target)
+        poses = self.pose(target, sources)
+        for name, t in [("disparity", d) for d in disps] + [("pose", poses)]:
+            if not np.isfinite(t.data).all():
+                raise FloatingPointError(
+                    f"train-depth: the predicted {name} holds NaN/inf at iteration "
+                    f"{self.iteration + 1}, so the loss would be NaN; try a smaller --lr")
+        loss, info = view_synthesis_loss(target, sources, disps, poses, K, self.cfg.loss)
+        value = float(loss.data)
+        if not math.isfinite(value):
+            raise FloatingPointError(
+                f"train-depth: the loss became {value} at iteration {self.iteration + 1} "
+                f"(photo {info['photo']}, smooth {info['smooth']}); try a smaller --lr")
+        self.opt.zero_grad()
+        loss.backward()
+        self.opt.step()
+        self.iteration += 1
+        info["loss"] = value
+        return info
+
+    def run(self, progress: bool = True, callback=None) -> list[dict]:
+        cfg = self.cfg
+        bar = None
+        if progress:
+            from tqdm import tqdm
+            bar = tqdm(total=cfg.iterations, initial=self.iteration, desc="train-depth",
+                       unit="it", dynamic_ncols=True)
+        window, t0 = [], time.time()
+        while self.iteration < cfg.iterations:
+            info = self.step()
+            window.append(info)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{info['loss']:.4f}", photo=f"{info['photo']:.4f}")
+            if self.iteration % cfg.log_every == 0 or self.iteration == cfg.iterations:
+                row = {k: float(np.mean([w[k] for w in window])) for k in window[0]}
+                row["iteration"] = self.iteration
+                row["seconds"] = time.time() - t0
+                self.history.append(row)
+                window = []
+                if callback is not None:
+                    callback(self, row)
+            if self.checkpoint and (self.iteration % cfg.checkpoint_every == 0
+                                    or self.iteration == cfg.iterations):
+                self.save_checkpoint(self.checkpoint)
+        if bar is not None:
+            bar.close()
+        return self.history
+
+    # -- checkpoints -----------------------------------------------------------------
+    def save_checkpoint(self, path) -> Path:
+        arrays = {f"disp.{k}": v for k, v in self.disp.state_dict().items()}
+        arrays.update({f"pose.{k}": v for k, v in self.pose.state_dict().items()})
+        arrays.update({f"opt.{k}": v for k, v in self.opt.state_dict().items()})
+        meta = {"iteration": self.iteration, "config": self.cfg.to_dict(),
+                "rng": _jsonable(self.rng.bit_generator.state), "history": self.history}
+        return save_npz(path, arrays, meta)
+
+    def init_from(self, path) -> None:
+        """Start from another run's checkpoint weights (fine-tuning, e.g. for scenario
+        transfer); the optimizer, the sampler and the iteration count start fresh."""
+        arrays, _ = load_npz(path)
+        pick = lambda prefix: {k[len(prefix):]: v for k, v in arrays.items()
+                               if k.startswith(prefix)}
+        self.disp.load_state_dict(pick("disp."))
+        self.pose.load_state_dict(pick("pose."))
+
+    def load_checkpoint(self, path) -> None:
+        arrays, meta = load_npz(path)
+        saved = TrainConfig.from_dict(meta["config"])
+        for key in ("seed", "batch_size", "encoder", "decoder", "n_scales", "lr", "loss",
+                    "init_disp", "pose_scale", "pose_head_gain", "pose_dof", "pose_init_forward"):
+            if getattr(saved, key) != getattr(self.cfg, key):
+                raise ValueError(f"resume: the checkpoint {str(path)!r} was made with {key} = "
+                                 f"{getattr(saved, key)!r}, this run asks {getattr(self.cfg, key)!r}")
+        pick = lambda prefix: {k[len(prefix):]: v for k, v in arrays.items()
+                               if k.startswith(prefix)}
+        self.disp.load_state_dict(pick("disp."))
+        self.pose.load_state_dict(pick("pose."))
+        self.opt.load_state_dict(pick("opt."))
+        self.rng.bit_generator.state = meta["rng"]
+        self.iteration = int(meta["iteration"])
+        self.history = list(meta["history"])
+
+    # -- the metric scale from the known flight speed ----------------------------------
+    def speed_scale(self, max_triplets: int = 400) -> float:
+        return speed_scale(self.pose, self.seq, max_triplets)
+
+
+def speed_scale(posenet: PoseNet, seq: Sequence, max_triplets: int = 400,
+                step: float = SPEED * FRAME_DT) -> float:
+    """scale = step / mean |t_pred| over (up to ``max_triplets``) triplets, both sources.
+
+    ``step`` is the distance flown between frames (known from the drone's speed, not
+    from ground truth). Multiplying the network's depth (1 / disp) by this scale gives
+    metres.
+    """
+    idx = seq.triplet_indices()
+    if len(idx) > max_triplets:
+        idx = idx[np.linspace(0, len(idx) - 1, max_triplets).astype(int)]
+    norms = []
+    with ag.no_grad():
+        for k in range(0, len(idx), 64):
+            target, sources = seq.batch(idx[k:k + 64])
+            poses = posenet(target, sources).data
+            norms.append(np.linalg.norm(poses[..., :3], axis=-1).ravel())
+    mean = float(np.mean(np.concatenate(norms)))
+    if not mean > 0:
+        raise FloatingPointError("speed_scale: PoseNet predicts no motion at all")
+    return step / mean
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    return obj
+
+
+__all__ = ["TrainConfig", "Trainer", "build_nets", "speed_scale"]

@@ -1,0 +1,250 @@
+"""Command-line hooks: ``train-agent``, ``evaluate``, ``fly``, ``reproduce``.
+
+Each command has ``add_arguments_<name>(parser)`` and ``run_<name>(args) -> int``;
+``minid3rqn/cli.py`` registers them.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+MODELS = Path(__file__).resolve().parent.parent / "models"
+RUNS = Path("runs")
+SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
+VARIANT_NAMES = {"ddqn": "DDQN", "d3qn": "D3QN", "ddrqn": "DDRQN", "d3rqn": "D3RQN"}
+
+
+def _command_line() -> str:
+    return "python -m minid3rqn " + " ".join(sys.argv[1:])
+
+
+def shipped_depth_model(scenario: str = "basic") -> Path:
+    return MODELS / f"depth_{scenario}.npz"
+
+
+def load_depth_estimator(path):
+    from ..depth.evaluate import DepthEstimator
+    return DepthEstimator.load(path)
+
+
+def _estimator_for(depth: str, depth_model, scenario: str):
+    if depth != "pred":
+        return None
+    path = Path(depth_model) if depth_model else shipped_depth_model(scenario)
+    if not path.exists():
+        raise SystemExit(f"depth model {str(path)!r} not found; train one with "
+                         f"`python -m minid3rqn train-depth --scenario {scenario} --ship` "
+                         f"or pass --depth gt")
+    return load_depth_estimator(path)
+
+
+# -- train-agent --------------------------------------------------------------------------
+SMOKE = dict(total_steps=128, learning_starts=64, n_envs=8, log_every=64, checkpoint_every=1000,
+             hidden=16, replay_capacity=2000, eps_decay_steps=200)
+
+
+def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
+    from .train import TrainConfig
+    d = TrainConfig()
+    p.add_argument("--variant", default=d.variant, choices=["ddqn", "d3qn", "ddrqn", "d3rqn"])
+    p.add_argument("--stack", type=int, default=None,
+                   help="frames per observation (default 1; 5 = the window as channels)")
+    p.add_argument("--seq-len", type=int, default=None,
+                   help="replay window (default 5 for recurrent variants, 1 otherwise)")
+    p.add_argument("--scenario", default=d.scenario)
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--steps", type=int, default=d.total_steps, help="environment transitions")
+    p.add_argument("--n-envs", type=int, default=d.n_envs)
+    p.add_argument("--updates-per-step", type=float, default=d.updates_per_step)
+    p.add_argument("--learning-starts", type=int, default=d.learning_starts)
+    p.add_argument("--eps-decay", type=int, default=d.eps_decay_steps)
+    p.add_argument("--replay", type=int, default=d.replay_capacity)
+    p.add_argument("--hidden", type=int, default=d.hidden)
+    p.add_argument("--depth", default=d.depth, choices=["gt", "pred"])
+    p.add_argument("--depth-model", default=None, help="DepthEstimator .npz (--depth pred)")
+    p.add_argument("--out", default=None, help="run folder (default runs/agent/<name>)")
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--ship", default=None, help="also copy the model to minid3rqn/models/NAME.npz")
+    p.add_argument("--smoke", action="store_true", help="a few hundred steps (tests)")
+    p.add_argument("--quiet", action="store_true")
+
+
+def config_from_args(args):
+    from .train import TrainConfig
+    recurrent = args.variant in ("ddrqn", "d3rqn")
+    seq_len = args.seq_len or (5 if recurrent else 1)
+    cfg = TrainConfig(variant=args.variant, stack=args.stack or 1, seq_len=seq_len,
+                      scenario=args.scenario, seed=args.seed, n_envs=args.n_envs,
+                      total_steps=args.steps, learning_starts=args.learning_starts,
+                      updates_per_step=args.updates_per_step, eps_decay_steps=args.eps_decay,
+                      replay_capacity=args.replay, hidden=args.hidden, depth=args.depth)
+    if args.smoke:
+        from .flights import FlightsConfig
+        for k, v in SMOKE.items():
+            setattr(cfg, k, v)
+        cfg.flights = FlightsConfig(n_worlds=2)
+    return cfg
+
+
+def run_name(cfg) -> str:
+    stack = f"_stack{cfg.stack}" if cfg.stack > 1 else ""
+    return f"{cfg.variant}{stack}_{cfg.scenario}_{cfg.depth}_s{cfg.seed}"
+
+
+def run_train_agent(args) -> int:
+    from .train import train
+    cfg = config_from_args(args)
+    out = Path(args.out) if args.out else RUNS / "agent" / (("smoke_" if args.smoke else "")
+                                                           + run_name(cfg))
+    est = _estimator_for(cfg.depth, args.depth_model, cfg.scenario)
+    t0 = time.time()
+    tr = train(cfg, out, depth_estimator=est, progress=not args.quiet, resume=args.resume)
+    extra = {"command": _command_line(), "seed": cfg.seed,
+             "train_seconds": round(time.time() - t0, 1),
+             "depth_model": str(args.depth_model or (shipped_depth_model(cfg.scenario)
+                                                     if cfg.depth == "pred" else ""))}
+    model = tr.save_model(out / "model.npz", extra)
+    print(json.dumps({"model": str(model), "steps": tr.steps, "updates": tr.agent.updates,
+                      "last": tr.curve[-1] if tr.curve else {}}))
+    if args.ship:
+        ship_model(model, args.ship)
+    return 0
+
+
+def ship_model(model_path, name: str, results: dict | None = None) -> Path:
+    """Copy a trained Q-net into the package (models/NAME.npz + NAME.json)."""
+    from ..io import load_npz, save_npz
+    arrays, meta = load_npz(model_path)
+    meta = dict(meta or {})
+    if results:
+        meta["results"] = results
+    MODELS.mkdir(exist_ok=True)
+    dst = MODELS / f"{name}.npz"
+    save_npz(dst, arrays, meta)
+    (MODELS / f"{name}.json").write_text(json.dumps(meta, indent=2))
+    return dst
+
+
+# -- evaluate -----------------------------------------------------------------------------
+BASELINES = ("straight", "random", "reactive", "oracle")
+
+
+def make_policy(spec: str, seed: int = 0):
+    """'straight' | 'random' | 'reactive' | 'oracle' | path to a Q-net .npz."""
+    from ..world import ACTIONS
+    from .policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy,
+                           StraightPolicy)
+    if spec == "straight":
+        return StraightPolicy()
+    if spec == "random":
+        return RandomPolicy(len(ACTIONS), seed=seed)
+    if spec == "reactive":
+        return ReactivePolicy(ACTIONS)
+    if spec == "oracle":
+        return OraclePolicy()
+    path = Path(spec)
+    if not path.exists():
+        raise SystemExit(f"evaluate: {spec!r} is neither a baseline {BASELINES} nor a model "
+                         f"file")
+    pol = QNetPolicy.load(path)
+    from ..nets.qnet import variant_name
+    name = VARIANT_NAMES[variant_name(pol.qnet.config)]
+    if pol.qnet.config.in_channels > 1:
+        name += f"-stack{pol.qnet.config.in_channels}"
+    pol.name = name
+    return pol
+
+
+def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
+    p.add_argument("policies", nargs="+",
+                   help=f"baselines {', '.join(BASELINES)} and/or Q-net .npz files")
+    p.add_argument("--scenario", default="basic")
+    p.add_argument("--flights", type=int, default=2000, help="test flights (paper: 2000)")
+    p.add_argument("--steps", type=int, default=50, help="steps for a success (paper: 50)")
+    p.add_argument("--seed", type=int, default=12345)
+    p.add_argument("--depth", default="gt", choices=["gt", "pred"])
+    p.add_argument("--depth-model", default=None)
+    p.add_argument("--chunk", type=int, default=500, help="flights stepped together")
+    p.add_argument("--json", default=None, help="append results to this JSON-lines file")
+    p.add_argument("--quiet", action="store_true")
+
+
+def run_evaluate(args) -> int:
+    from .evaluate import evaluate_policy
+    est = _estimator_for(args.depth, args.depth_model, args.scenario)
+    for spec in args.policies:
+        pol = make_policy(spec, args.seed)
+        res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
+                              args.chunk, args.depth, est, progress=not args.quiet)
+        print(res.line(), flush=True)
+        if args.json:
+            with open(args.json, "a") as f:
+                f.write(json.dumps({**res.to_dict(), "spec": spec,
+                                    "command": _command_line()}) + "\n")
+    return 0
+
+
+# -- fly ----------------------------------------------------------------------------------
+def add_arguments_fly(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", default=str(SHIPPED_QNET), help="Q-net .npz")
+    p.add_argument("--depth-model", default=None,
+                   help="DepthEstimator .npz (default: the shipped depth_<scenario>.npz)")
+    p.add_argument("--depth", default="pred", choices=["gt", "pred"])
+    p.add_argument("--scenario", default="basic")
+    p.add_argument("--flights", type=int, default=32,
+                   help="flights for the success rate (DispNet runs on every frame: keep it small)")
+    p.add_argument("--seed", type=int, default=None, help="world seed (default: random)")
+    p.add_argument("--gif", default="fly.gif")
+    p.add_argument("--steps", type=int, default=50)
+
+
+def run_fly(args) -> int:
+    from .fly import fly
+    seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 10**6)
+    depth = args.depth
+    model = Path(args.model)
+    if not model.exists():
+        raise SystemExit(f"fly: Q-net {str(model)!r} not found")
+    depth_model = args.depth_model or shipped_depth_model(args.scenario)
+    if depth == "pred" and not Path(depth_model).exists():
+        if args.depth_model is None and shipped_depth_model("basic").exists():
+            depth_model = shipped_depth_model("basic")
+        else:
+            print(f"fly: no depth model at {depth_model}; flying on GT depth", file=sys.stderr)
+            depth = "gt"
+    est = load_depth_estimator(depth_model) if depth == "pred" else None
+    out = fly(model, est, args.scenario, seed, args.flights, args.gif, args.steps)
+    print(json.dumps(out))
+    return 0
+
+
+# -- reproduce ----------------------------------------------------------------------------
+def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quick", action="store_true",
+                   help="classroom preset: short trainings, 200 test flights (minutes)")
+    p.add_argument("--out", default="runs/reproduce")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--depth", default="pred", choices=["gt", "pred"])
+    p.add_argument("--skip-depth", action="store_true",
+                   help="reuse depth models in minid3rqn/models instead of retraining them")
+    p.add_argument("--table", choices=["5", "6", "both"], default="both")
+    p.add_argument("--train-depth", default="gt", choices=["gt", "pred"],
+                   help="depth the Q-nets are trained on (default gt; tested on --depth)")
+
+
+def run_reproduce(args) -> int:
+    from .reproduce import reproduce
+    reproduce(out=Path(args.out), quick=args.quick, seed=args.seed, depth=args.depth,
+              skip_depth=args.skip_depth, tables=args.table, train_depth=args.train_depth)
+    return 0
+
+
+__all__ = ["add_arguments_train_agent", "run_train_agent", "add_arguments_evaluate", "run_evaluate",
+           "add_arguments_fly", "run_fly", "add_arguments_reproduce", "run_reproduce",
+           "make_policy", "ship_model", "config_from_args", "run_name"]

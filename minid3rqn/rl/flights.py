@@ -1,0 +1,250 @@
+"""Many flights at once, as the Q-learning code needs them: a thin layer over ``world``.
+
+Each of the ``n`` flights lives in a world drawn from a pool of ``n_worlds`` scenes of
+one scenario (training and evaluation draw their pools from disjoint seed ranges, so
+test flights are in fresh worlds) and starts at a random free pose. One ``step``:
+
+    1. fly the chosen (speed, yaw rate) for 0.4 s along the exact arc, checking the
+       clearance every 0.1 m (``kinematics.substep_poses``);
+    2. collision if the clearance drops below 0.5 m at any check (paper; the same test
+       as ``world.env.VecDroneEnv``, which renders RGB on every step: this layer casts
+       depth only when the Q-net reads GT depth, ~10x faster);
+    3. reward: the paper's Eq. 5, d_nearest at the new pose, or -1 on collision;
+    4. render the new view: GT depth (``depth="gt"``, one ray cast per column) or the
+       DispNet's depth from the RGB frame (``depth="pred"``), times a calibrated scale.
+
+The Q-nets read ``frames``: depth clipped to ``max_depth`` metres and divided by it,
+so values lie in [0, 1]. After ``max_steps`` actions without a collision a flight is
+*truncated* (a success, not a terminal state). With ``autoreset`` a finished flight
+restarts at once in a new world and start pose, and ``final_frames`` holds the last
+frame of the finished episode (the replay needs it for the bootstrap).
+"""
+from __future__ import annotations
+
+import copy
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..world import Camera, SceneBatch, make_scene, render_batch, sample_start_pose
+from ..world.distance import nearest_distance_batch
+from ..world.kinematics import (ACTION_INTERVAL, ACTIONS, SAFE_DISTANCE, n_substeps,
+                                paper_reward, substep_poses)
+from ..world.renderer import cast_columns
+
+TRAIN_SEEDS = 0                 # training worlds: seeds in [0, 1e6)
+TEST_SEEDS = 1_000_000          # evaluation worlds: seeds in [1e6, 2e6)
+
+
+@dataclass
+class FlightsConfig:
+    max_steps: int = 50          # paper: success = 50 steps without collision
+    n_worlds: int = 32           # ours: scenes in the pool of one Flights object
+    max_depth: float = 10.0      # ours: depth clip (m) for the Q-net input
+    depth_scale: float = 1.0     # metres per unit of predicted depth (1 for GT)
+    test_worlds: bool = False    # draw worlds from the evaluation seed range
+
+
+@dataclass
+class StepResult:
+    frames: np.ndarray       # (n, H, W) float32 next observation (a new episode's first
+                             # frame for a flight that was reset)
+    final_frames: np.ndarray  # (n, H, W) the frame after the action (before any reset)
+    rewards: np.ndarray      # (n,) float32, Eq. 5
+    terminated: np.ndarray   # (n,) bool collision
+    truncated: np.ndarray    # (n,) bool time limit reached without collision
+    success: np.ndarray      # (n,) bool == truncated
+    d_nearest: np.ndarray    # (n,) clearance at the new pose (m)
+
+
+def depth_only(batch: SceneBatch, poses: np.ndarray, camera: Camera) -> np.ndarray:
+    """GT pinhole depth (n, H, W) without colours: depth(v, u) = min(t(u), Z_plane(v)).
+
+    The renderer's geometry (``render.render_batch``) minus textures, ~10x faster.
+    """
+    hit = cast_columns(batch, poses, camera.column_rays())
+    world = hit["world"][:, 0]
+    yn = camera.row_rays()[None, :, None]
+    alt = batch.altitude[world][:, None, None]
+    up = batch.ceiling[world][:, None, None] - alt
+    with np.errstate(divide="ignore"):
+        z_plane = np.where(yn > 0, alt / yn, up / -yn)
+    return np.minimum(hit["t"][:, None, :], z_plane).astype(np.float32)
+
+
+class Flights:
+    """``n`` parallel flights in ``scenario``; see the module docstring."""
+
+    def __init__(self, scenario: str, n: int, seed: int = 0, config: FlightsConfig | None = None,
+                 depth: str = "gt", depth_estimator=None, autoreset: bool = True,
+                 camera: Camera | None = None, actions=None):
+        if depth not in ("gt", "pred"):
+            raise ValueError(f"Flights: depth must be 'gt' or 'pred'; got {depth!r}")
+        if depth == "pred" and depth_estimator is None:
+            raise ValueError("Flights: depth='pred' needs a depth_estimator (a DepthEstimator "
+                             "with predict(rgb uint8 (N, H, W, 3)) -> depth (N, H, W))")
+        if n < 1:
+            raise ValueError(f"Flights: n must be >= 1; got {n}")
+        self.scenario, self.n = scenario, int(n)
+        self.cfg = config or FlightsConfig()
+        self.depth_mode, self.estimator = depth, depth_estimator
+        self.autoreset = autoreset
+        self.camera = camera or Camera()
+        self.actions = np.asarray(ACTIONS if actions is None else actions, dtype=np.float64)
+        self.n_actions = len(self.actions)
+        self.frame_shape = (self.camera.height, self.camera.width)
+        self.n_sub = n_substeps(self.actions, ACTION_INTERVAL)
+        self.rng = np.random.default_rng(seed)
+        base = TEST_SEEDS if self.cfg.test_worlds else TRAIN_SEEDS
+        self.world_seeds = base + self.rng.choice(1_000_000, size=self.cfg.n_worlds, replace=False)
+        self.worlds = [make_scene(scenario, int(s)) for s in self.world_seeds]
+        self.world_of = np.zeros(self.n, dtype=np.int64)
+        self.poses = np.zeros((self.n, 3))
+        self.t = np.zeros(self.n, dtype=np.int64)
+        self.batch = None
+        self.last_depth = None
+        self.last_rgb = None
+
+    # -- observing ------------------------------------------------------------------
+    def observe(self, idx=None):
+        """Depth (metres) and frames ([0, 1]) for flights ``idx`` (all by default)."""
+        idx = np.arange(self.n) if idx is None else np.asarray(idx)
+        poses = self.poses[idx]
+        sub = self._sub_batch(idx)
+        rgb = None
+        if self.depth_mode == "gt":
+            depth = depth_only(sub, poses, self.camera)
+        else:
+            rgb, _ = render_batch(sub, poses, self.camera)
+            depth = np.asarray(self.estimator.predict(rgb), dtype=np.float32) * self.cfg.depth_scale
+        frames = np.clip(depth, 0.0, self.cfg.max_depth) / self.cfg.max_depth
+        return depth, frames.astype(np.float32), rgb
+
+    def _sub_batch(self, idx) -> SceneBatch:
+        """The worlds of flights ``idx`` as a SceneBatch: rows of the full batch's arrays."""
+        if len(idx) == self.n:
+            return self.batch
+        sub = copy.copy(self.batch)
+        for name, value in vars(self.batch).items():
+            if isinstance(value, np.ndarray) and value.ndim >= 1 and len(value) == self.n:
+                setattr(sub, name, value[idx])
+        sub.scenes = [self.batch.scenes[k] for k in idx]
+        return sub
+
+    def _store(self, idx, depth, rgb):
+        if self.last_depth is None:
+            self.last_depth = np.zeros((self.n,) + self.frame_shape, np.float32)
+        self.last_depth[idx] = depth
+        if rgb is not None:
+            if self.last_rgb is None:
+                self.last_rgb = np.zeros((self.n,) + self.frame_shape + (3,), np.uint8)
+            self.last_rgb[idx] = rgb
+
+    def _new_episodes(self, idx):
+        for k in idx:
+            w = int(self.rng.integers(len(self.worlds)))
+            self.world_of[k] = w
+            self.poses[k] = sample_start_pose(self.worlds[w], self.rng)
+            self.t[k] = 0
+            if self.batch is not None:
+                self.batch.set(int(k), self.worlds[w])
+
+    def reset(self) -> np.ndarray:
+        """Start every flight afresh; returns frames (n, H, W)."""
+        self._new_episodes(range(self.n))
+        self.batch = SceneBatch([self.worlds[k] for k in self.world_of])
+        depth, frames, rgb = self.observe()
+        self._store(np.arange(self.n), depth, rgb)
+        self.frames = frames
+        return frames.copy()
+
+    # -- acting ---------------------------------------------------------------------
+    def step(self, actions, active=None) -> StepResult:
+        """Apply one action per flight (ignored where ``active`` is False)."""
+        actions = np.asarray(actions, dtype=np.int64)
+        if actions.shape != (self.n,) or actions.min() < 0 or actions.max() >= self.n_actions:
+            raise ValueError(f"Flights.step: actions must be ({self.n},) ints in "
+                             f"[0, {self.n_actions}); got shape {actions.shape}")
+        act = np.ones(self.n, bool) if active is None else np.asarray(active, bool)
+        idx = np.flatnonzero(act)
+        rewards = np.zeros(self.n, np.float32)
+        term = np.zeros(self.n, bool)
+        trunc = np.zeros(self.n, bool)
+        d_near = np.zeros(self.n)
+        final = self.frames.copy()
+        if len(idx):
+            a = self.actions[actions[idx]]
+            path = substep_poses(self.poses[idx], a[:, 0], a[:, 1], ACTION_INTERVAL, self.n_sub)
+            clear = nearest_distance_batch(self._sub_batch(idx), path[:, :, :2])  # (m, n_sub)
+            collided = clear.min(axis=1) < SAFE_DISTANCE
+            self.poses[idx] = path[:, -1]
+            self.t[idx] += 1
+            d_near[idx] = clear[:, -1]
+            rewards[idx] = paper_reward(clear[:, -1], collided)
+            term[idx] = collided
+            trunc[idx] = ~collided & (self.t[idx] >= self.cfg.max_steps)
+            depth, frames, rgb = self.observe(idx)
+            self._store(idx, depth, rgb)
+            final[idx] = frames
+            self.frames[idx] = frames
+        done = np.flatnonzero(term | trunc)
+        if self.autoreset and len(done):
+            self._new_episodes(done)
+            depth, frames, rgb = self.observe(done)
+            self._store(done, depth, rgb)
+            self.frames[done] = frames
+        return StepResult(self.frames.copy(), final, rewards, term, trunc, trunc.copy(), d_near)
+
+    # -- privileged information, for the oracle and the top view -------------------
+    def scene_of(self, k: int):
+        return self.worlds[self.world_of[k]]
+
+    # The attributes the world's baseline pilots read (``world.policies``: env.poses,
+    # env.scenes, env.actions, env.dt, env.safe_distance, env.steps), so that the world's
+    # Oracle flies a Flights object unchanged.
+    @property
+    def scenes(self):
+        return [self.worlds[w] for w in self.world_of]
+
+    @property
+    def steps(self):
+        return self.t
+
+    dt = ACTION_INTERVAL
+    safe_distance = SAFE_DISTANCE
+
+    # -- saving (exact resume) ------------------------------------------------------
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {"world_of": self.world_of, "poses": self.poses, "t": self.t,
+                "frames": self.frames, "last_depth": self.last_depth}
+
+    def meta_state(self) -> dict:
+        return {"rng": json.dumps(self.rng.bit_generator.state)}
+
+    def load_state_dict(self, arrays: dict, meta: dict) -> None:
+        self.world_of[...] = arrays["world_of"]
+        self.poses[...] = arrays["poses"]
+        self.t[...] = arrays["t"]
+        self.frames = arrays["frames"].copy()
+        self.last_depth = arrays["last_depth"].copy()
+        self.batch = SceneBatch([self.worlds[k] for k in self.world_of])
+        self.rng.bit_generator.state = json.loads(meta["rng"])
+
+
+def calibrate_depth_scale(estimator, scenario: str, seed: int = 0, n: int = 64) -> float:
+    """One scalar per depth network: median over n random views of median(GT) / median(pred).
+
+    Monocular depth is known only up to scale; the Q-net needs metres-like input, so the
+    scale is fixed once per depth network (SfMLearner evaluates with the same medians,
+    per image).
+    """
+    fl = Flights(scenario, n, seed=seed, depth="gt", autoreset=False)
+    fl.reset()
+    rgb, gt = render_batch(fl.batch, fl.poses, fl.camera)
+    pred = np.asarray(estimator.predict(rgb), dtype=np.float64)
+    ratio = np.median(gt.reshape(n, -1), axis=1) / np.maximum(np.median(pred.reshape(n, -1), axis=1), 1e-9)
+    return float(np.median(ratio))
+
+
+__all__ = ["Flights", "FlightsConfig", "StepResult", "depth_only", "calibrate_depth_scale"]

@@ -1,0 +1,66 @@
+"""The main job: fly a trained model in fresh worlds, write a GIF and a success rate.
+
+GIF panels, one frame per step of flight 0:  top view (obstacles, path, heading) |
+camera RGB | depth the Q-net sees | Q-values (chosen action highlighted).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import viz
+from ..world import render_batch, topdown
+from ..world.kinematics import ACTIONS
+from .evaluate import run_flights, wilson_interval
+from .flights import Flights, FlightsConfig
+from .policies import QNetPolicy
+
+ACTION_NAMES = ["0", "+.25", "-.25", "+.5", "-.5"]
+
+
+def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flights: int = 200,
+        gif="fly.gif", max_steps: int = 50) -> dict:
+    """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate."""
+    t0 = time.time()
+    policy = QNetPolicy.load(model, "D3RQN")
+    depth = "pred" if depth_estimator is not None else "gt"
+    flights = Flights(scenario, n_flights, seed=seed, depth=depth,
+                      depth_estimator=depth_estimator, autoreset=False,
+                      config=FlightsConfig(max_steps=max_steps, test_worlds=True))
+    frames_out, path, crashed = [], [], [False]
+    max_depth = flights.cfg.max_depth
+
+    def record(t, obs, actions, res):
+        k = 0                                   # the GIF follows flight 0
+        if crashed[0] or (t > 0 and not path):
+            return
+        scene = flights.scene_of(k)
+        if not path:
+            path.append(obs["poses"][k])
+        rgb = obs["rgb"][k] if obs["rgb"] is not None else \
+            render_batch(scene, obs["poses"][k:k + 1], flights.camera)[0][0]
+        bars = viz.bar_chart(policy.last_q[k], ACTION_NAMES, (160, 120), int(actions[k]),
+                             title=f"Q-values, step {t + 1}")
+        panels = [rgb, viz.depth_to_rgb(obs["depth"][k], max_depth), bars]
+        top = np.asarray(topdown(scene, np.array(path), obs["poses"][k], flights.camera, 192))
+        frames_out.append(viz.hstack([top] + panels, 192))
+        path.append(flights.poses[k].copy())
+        if res.terminated[k]:
+            crashed[0] = True
+            top = np.asarray(topdown(scene, np.array(path), path[-1], flights.camera, 192))
+            frames_out.append(viz.label(viz.hstack([top] + panels, 192), "COLLISION",
+                                        (200, 4), (255, 40, 40)))
+
+    survived = run_flights(policy, flights, max_steps, record=record)
+    k = int((survived >= max_steps).sum())
+    lo, hi = wilson_interval(k, n_flights)
+    gif = viz.write_gif(frames_out, gif, fps=4)
+    return {"scenario": scenario, "seed": seed, "flights": n_flights, "successes": k,
+            "success_rate": k / n_flights, "ci95": [round(lo, 4), round(hi, 4)],
+            "depth": depth, "gif": str(gif), "seconds": round(time.time() - t0, 1),
+            "flight0_steps": int(survived[0])}
+
+
+__all__ = ["fly"]

@@ -1,0 +1,169 @@
+"""Policies for batched flights: Straight, Random, Reactive, Oracle, and a trained QNet.
+
+A policy sees a batch of flights. ``reset(n)`` starts n flights; ``act(obs)`` returns
+one action index per flight, where ``obs`` is a dict with
+
+    "frames"  (n, H, W) float32 depth frames in [0, 1] (the Q-nets' input, 1 = far)
+    "depth"   (n, H, W) depth in metres (GT, or the DispNet's prediction scaled)
+    "flights" the Flights object, for the privileged oracle only
+    "active"  (n,) bool: flights still flying (the others' actions are ignored)
+
+and ``started`` (bool (n,)) on ``act`` marks flights whose episode has just begun
+(the recurrent policy zeroes their state).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..nets.qnet import QNet, QNetConfig
+from .agent import Agent, FrameStacker
+
+
+class Policy:
+    name = "policy"
+
+    def reset(self, n: int) -> None:
+        self.n = n
+
+    def act(self, obs: dict) -> np.ndarray:
+        raise NotImplementedError
+
+
+class StraightPolicy(Policy):
+    """Always action 0: fly straight ahead (the paper's "Straight")."""
+    name = "Straight"
+
+    def __init__(self, straight_action: int = 0):
+        self.a = straight_action
+
+    def act(self, obs):
+        return np.full(len(obs["frames"]), self.a, dtype=np.int64)
+
+
+class RandomPolicy(Policy):
+    """A uniformly random action every step (the paper's "Random")."""
+    name = "Random"
+
+    def __init__(self, n_actions: int, seed=None):
+        self.n_actions = n_actions
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, obs):
+        return self.rng.integers(self.n_actions, size=len(obs["frames"])).astype(np.int64)
+
+
+class ReactivePolicy(Policy):
+    """Steer toward the deepest direction of the depth map (no learning, no memory).
+
+    Per image column, the obstacle distance is the median depth of the rows around the
+    horizon (the optical axis is level, so floor and ceiling are far from those rows).
+    The profile is smoothed over ``smooth`` columns (a corridor as wide as the drone
+    must be free, not one pixel). If the centre of the image is free beyond
+    ``clear_ahead`` metres the drone flies straight; otherwise it turns toward the
+    column of greatest depth, with the yaw rate in the action table nearest to
+    ``angle / turn_time`` (the rate that would face that direction in ``turn_time`` s).
+    """
+    name = "Reactive"
+
+    def __init__(self, actions: np.ndarray, hfov_deg: float = 90.0, rows: int = 4,
+                 smooth: int = 15, clear_ahead: float = 4.0, turn_time: float = 0.8):
+        self.actions = np.asarray(actions, dtype=np.float64)
+        self.hfov = math.radians(hfov_deg)
+        self.rows, self.smooth = rows, smooth
+        self.clear_ahead, self.turn_time = clear_ahead, turn_time
+
+    def profile(self, depth: np.ndarray) -> np.ndarray:
+        """(n, H, W) depth -> (n, W) smoothed per-column obstacle distance."""
+        n, H, W = depth.shape
+        mid = H // 2
+        band = depth[:, max(0, mid - self.rows // 2): mid + (self.rows + 1) // 2]
+        col = np.median(band, axis=1)
+        k = max(1, min(self.smooth, W))
+        pad = np.pad(col, ((0, 0), (k // 2, k - 1 - k // 2)), mode="edge")
+        # a corridor is only as free as its nearest point: sliding minimum
+        win = np.lib.stride_tricks.sliding_window_view(pad, k, axis=1)
+        return win.min(axis=2)
+
+    def act(self, obs):
+        depth = np.asarray(obs["depth"], dtype=np.float64)
+        n, H, W = depth.shape
+        prof = self.profile(depth)
+        centre = prof[:, W // 2]
+        best = np.argmax(prof, axis=1)
+        fx = (W / 2) / math.tan(self.hfov / 2)
+        angle = -np.arctan((best - (W - 1) / 2) / fx)       # left of centre -> positive
+        want = angle / self.turn_time
+        want = np.where(centre >= self.clear_ahead, 0.0, want)
+        rates = self.actions[:, 1]
+        speeds_ok = self.actions[:, 0] > 0
+        cost = np.abs(want[:, None] - rates[None, :]) + np.where(speeds_ok, 0, 1e9)[None, :]
+        return np.argmin(cost, axis=1).astype(np.int64)
+
+
+class OraclePolicy(Policy):
+    """The world's privileged planner (``world.policies.Oracle``: it reads the map, not
+    the camera), flying our ``Flights`` through the attributes it expects."""
+    name = "Oracle"
+
+    def reset(self, n):
+        from ..world.policies import Oracle
+        self.n = n
+        self.oracle = Oracle()
+
+    def act(self, obs):
+        return np.asarray(self.oracle(obs["flights"]), dtype=np.int64)
+
+
+class QNetPolicy(Policy):
+    """Greedy on a trained QNet; recurrent state carried through each flight."""
+
+    def __init__(self, qnet: QNet, name: str | None = None, epsilon: float = 0.0, seed=None):
+        self.qnet = qnet
+        self.name = name or "QNet"
+        self.epsilon = epsilon
+        self.rng = np.random.default_rng(seed)
+        self.last_q = None
+
+    @classmethod
+    def load(cls, path, name: str | None = None) -> "QNetPolicy":
+        from ..io import load_npz
+        arrays, meta = load_npz(path)
+        cfg = QNetConfig(**meta["qnet_config"])
+        net = QNet(cfg, rng=0)
+        net.load_state_dict(arrays)
+        pol = cls(net, name)
+        pol.meta = meta
+        return pol
+
+    def reset(self, n):
+        self.n = n
+        cfg = self.qnet.config
+        self.stacker = FrameStacker(n, cfg.in_channels, (cfg.height, cfg.width_px))
+        self.state = self.qnet.initial_state(n)
+        self.fresh = np.ones(n, bool)
+
+    def act(self, obs, started=None):
+        frames = np.asarray(obs["frames"], dtype=np.float32)
+        started = self.fresh if started is None else (np.asarray(started, bool) | self.fresh)
+        if started.any():
+            self.stacker.reset(np.flatnonzero(started), frames[started])
+            self.state = Agent.reset_state(self.state, started)
+        live = np.flatnonzero(~started)
+        if len(live):
+            self.stacker.push(frames[live], live)
+        self.fresh[:] = False
+        from ..autograd import no_grad
+        with no_grad():
+            q, self.state = self.qnet.step(self.stacker.obs, self.state)
+        self.last_q = q.data
+        actions = np.argmax(q.data, axis=1).astype(np.int64)
+        if self.epsilon > 0:
+            explore = self.rng.random(len(actions)) < self.epsilon
+            actions = np.where(explore, self.rng.integers(q.shape[1], size=len(actions)), actions)
+        return actions
+
+
+__all__ = ["Policy", "StraightPolicy", "RandomPolicy", "ReactivePolicy", "OraclePolicy",
+           "QNetPolicy"]

@@ -1,0 +1,134 @@
+"""``python -m minid3rqn reproduce``: Tables 5 and 6 end to end.
+
+    1. depth: train a DispNet per scenario (basic, channel, intersections, corners),
+       unless ``--skip-depth`` (then the shipped ``models/depth_<scenario>.npz``);
+    2. Table 5: train the Q-family on ``basic`` (same budget and seed for every model:
+       D3RQN, DDRQN, D3QN, DDQN, and the non-recurrent pair with 5 stacked frames);
+       evaluate them with Straight, Random, Reactive and the Oracle on fresh worlds;
+    3. Table 6: the D3RQN from step 2, unchanged, in channel / intersections / corners,
+       reading the depth net trained there.
+
+Everything lands in ``--out`` (results.json, results.md, one folder per run).
+``--quick`` shrinks every budget (minutes, for a classroom; the numbers are then only
+a smoke test of the pipeline).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from .commands import (MODELS, VARIANT_NAMES, add_arguments_train_agent, config_from_args,
+                       load_depth_estimator, make_policy, run_name)
+from .evaluate import evaluate_policy
+from .train import train
+
+PAPER_T5 = {"Straight": 0.0, "Random": 0.002, "DDQN": 0.137, "D3QN": 0.152, "DDRQN": 0.673,
+            "D3RQN": 0.994}
+PAPER_T6 = {"channel": {"Straight": 0.0, "Random": 0.003, "D3RQN": 0.923},
+            "intersections": {"Straight": 0.0, "Random": 0.001, "D3RQN": 0.968},
+            "corners": {"Straight": 0.0, "Random": 0.0, "D3RQN": 0.938}}
+TRANSFER = ("channel", "intersections", "corners")
+FAMILY = ("d3rqn", "ddrqn", "d3qn", "ddqn", "d3qn:5", "ddqn:5")
+
+FULL = dict(steps=60_000, flights=2000, depth_frames=5000, depth_iterations=None)
+QUICK = dict(steps=3_000, flights=200, depth_frames=600, depth_iterations=300)
+
+
+def _train_depth(scenario: str, out: Path, seed: int, budget: dict) -> Path:
+    from ..depth import commands as dc
+    p = argparse.ArgumentParser()
+    dc.add_arguments_train_depth(p)
+    argv = ["--scenario", scenario, "--seed", str(seed), "--frames", str(budget["depth_frames"]),
+            "--dir", str(out / "depth" / scenario), "--quiet"]
+    if budget["depth_iterations"]:
+        argv += ["--iterations", str(budget["depth_iterations"])]
+    args = p.parse_args(argv)
+    dc.run_train_depth(args)
+    return out / "depth" / scenario / "model.npz"
+
+
+def _train_agent(spec: str, out: Path, seed: int, budget: dict, train_depth: str, depth_model):
+    variant, _, stack = spec.partition(":")
+    p = argparse.ArgumentParser()
+    add_arguments_train_agent(p)
+    argv = ["--variant", variant, "--seed", str(seed), "--steps", str(budget["steps"]),
+            "--learning-starts", str(min(5000, budget["steps"] // 6)),
+            "--eps-decay", str(budget["steps"]), "--replay", "100000",
+            "--updates-per-step", "1.5", "--depth", train_depth]
+    if stack:
+        argv += ["--stack", stack]
+    args = p.parse_args(argv)
+    cfg = config_from_args(args)
+    run_dir = out / "agent" / run_name(cfg)
+    est = load_depth_estimator(depth_model) if train_depth == "pred" else None
+    tr = train(cfg, run_dir, depth_estimator=est, progress=True, resume=True)
+    return tr.save_model(run_dir / "model.npz", {"command": "reproduce " + " ".join(argv),
+                                                  "seed": seed})
+
+
+def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred",
+              skip_depth: bool = False, tables: str = "both", train_depth: str = "gt") -> dict:
+    budget = QUICK if quick else FULL
+    out.mkdir(parents=True, exist_ok=True)
+    results = {"budget": budget, "seed": seed, "depth": depth, "table5": [], "table6": [],
+               "started": time.strftime("%Y-%m-%d %H:%M:%S")}
+    scenarios = ["basic"] + (list(TRANSFER) if tables in ("6", "both") else [])
+    depth_models = {}
+    if depth == "pred" or train_depth == "pred":
+        for sc in scenarios:
+            shipped = MODELS / f"depth_{sc}.npz"
+            depth_models[sc] = shipped if skip_depth else _train_depth(sc, out, seed, budget)
+    models = {}
+    for spec in FAMILY if tables in ("5", "both") else ("d3rqn",):
+        models[spec] = _train_agent(spec, out, seed, budget, train_depth,
+                                    depth_models.get("basic"))
+
+    def run_eval(policies, scenario):
+        est = load_depth_estimator(depth_models[scenario]) if depth == "pred" else None
+        rows = []
+        for spec in policies:
+            pol = make_policy(str(spec), seed)
+            res = evaluate_policy(pol, scenario, budget["flights"], seed=12345 + seed,
+                                  depth=depth, depth_estimator=est)
+            print(res.line(), flush=True)
+            rows.append(res.to_dict())
+        return rows
+
+    if tables in ("5", "both"):
+        results["table5"] = run_eval(["straight", "random", "reactive", "oracle"]
+                                     + [models[s] for s in FAMILY], "basic")
+    if tables in ("6", "both"):
+        for sc in TRANSFER:
+            results["table6"] += run_eval(["straight", "random", "reactive", "oracle",
+                                           models["d3rqn"]], sc)
+    results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
+    (out / "results.json").write_text(json.dumps(results, indent=2))
+    (out / "results.md").write_text(markdown_tables(results))
+    print(markdown_tables(results))
+    return results
+
+
+def markdown_tables(results: dict) -> str:
+    lines = []
+    if results.get("table5"):
+        lines += ["Table 5 (basic): success rate over test flights, 95% Wilson interval", "",
+                  "| model | ours | 95% CI | paper |", "|---|---|---|---|"]
+        for r in results["table5"]:
+            paper = PAPER_T5.get(r["policy"])
+            lines.append(f"| {r['policy']} | {r['rate']:.3f} | [{r['ci_low']:.3f}, "
+                         f"{r['ci_high']:.3f}] | {'' if paper is None else paper} |")
+        lines.append("")
+    if results.get("table6"):
+        lines += ["Table 6 (transfer, Q-net from basic unchanged)", "",
+                  "| scenario | model | ours | 95% CI | paper |", "|---|---|---|---|---|"]
+        for r in results["table6"]:
+            paper = PAPER_T6.get(r["scenario"], {}).get(r["policy"])
+            lines.append(f"| {r['scenario']} | {r['policy']} | {r['rate']:.3f} | "
+                         f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | "
+                         f"{'' if paper is None else paper} |")
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["reproduce", "markdown_tables", "PAPER_T5", "PAPER_T6"]

@@ -1,0 +1,293 @@
+"""The training loop: many flights stepped together, one replay, one agent.
+
+Per vector step (``n_envs`` flights at once):
+
+    1. act: epsilon-greedy on the batched Q-net; the recurrent state advances for every
+       flight, and is zeroed for a flight that has just started a new episode;
+    2. step the flights; store (a, r, collision, o') in the flight's replay stream;
+       a finished flight (collision, or the 50-step limit: not terminal) restarts;
+    3. after ``learning_starts`` transitions, ``updates_per_step`` double-Q updates on
+       windows sampled from the replay.
+
+Everything random comes from ``seed``: the networks, the worlds, exploration and
+sampling. A checkpoint holds the agent (weights, target, Adam), the replay, the
+flights' state and every generator, so ``resume`` continues the exact same run.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from ..io import load_npz, save_npz
+from ..nets.qnet import QNetConfig
+from .agent import Agent, AgentConfig, FrameStacker
+from .flights import Flights, FlightsConfig
+from .replay import EpisodeReplay
+
+
+@dataclass
+class TrainConfig:
+    variant: str = "d3rqn"         # ddqn | d3qn | ddrqn | d3rqn
+    stack: int = 1                 # frames per observation (5: the window as channels)
+    seq_len: int = 5               # paper, Table 4 (recurrent); non-recurrent use 1
+    scenario: str = "basic"
+    seed: int = 0
+    n_envs: int = 16               # ours: parallel flights
+    total_steps: int = 60_000      # ours: environment transitions (all flights)
+    learning_starts: int = 2_000   # ours
+    updates_per_step: float = 1.0  # ours: gradient updates per vector step (n_envs transitions)
+    batch_size: int = 32           # paper, Table 4
+    replay_capacity: int = 60_000  # ours: frames
+    eps_start: float = 1.0         # ours
+    eps_end: float = 0.05          # ours
+    eps_decay_steps: int = 30_000  # ours: transitions for the linear decay
+    hidden: int = 128              # ours: LSTM / FC width
+    depth: str = "gt"              # gt | pred (the DispNet's depth maps)
+    log_every: int = 2_000         # transitions between learning-curve rows
+    checkpoint_every: int = 10_000  # transitions between checkpoints
+    agent: AgentConfig = field(default_factory=AgentConfig)
+    flights: FlightsConfig = field(default_factory=FlightsConfig)
+
+    def __post_init__(self):
+        if isinstance(self.agent, dict):
+            self.agent = AgentConfig(**self.agent)
+        if isinstance(self.flights, dict):
+            self.flights = FlightsConfig(**self.flights)
+
+    def qnet_config(self, n_actions: int, frame_shape) -> QNetConfig:
+        return QNetConfig.for_variant(self.variant, in_channels=self.stack,
+                                      height=frame_shape[0], width_px=frame_shape[1],
+                                      n_actions=n_actions, width=self.hidden)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
+def epsilon_at(cfg: TrainConfig, step: int) -> float:
+    """Linear from eps_start to eps_end over eps_decay_steps transitions, then flat."""
+    frac = min(1.0, step / max(1, cfg.eps_decay_steps))
+    return cfg.eps_start + frac * (cfg.eps_end - cfg.eps_start)
+
+
+def _rng_state(rng: np.random.Generator) -> str:
+    return json.dumps(rng.bit_generator.state)
+
+
+def _set_rng_state(rng: np.random.Generator, s: str) -> None:
+    rng.bit_generator.state = json.loads(s)
+
+
+class Trainer:
+    """Holds the run's state; ``run()`` trains to ``total_steps`` (resumable)."""
+
+    def __init__(self, cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True):
+        self.cfg = cfg
+        self.out = Path(out_dir)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.progress = progress
+        ss = np.random.SeedSequence(cfg.seed)
+        net_seed, world_seed, act_seed, replay_seed = (int(s.generate_state(1)[0])
+                                                       for s in ss.spawn(4))
+        self.flights = Flights(cfg.scenario, cfg.n_envs, seed=world_seed, config=cfg.flights,
+                               depth=cfg.depth, depth_estimator=depth_estimator)
+        self.frame_shape = self.flights.frame_shape
+        self.agent = Agent(cfg.qnet_config(self.flights.n_actions, self.frame_shape),
+                           cfg.agent, rng=net_seed)
+        self.replay = EpisodeReplay(cfg.replay_capacity, cfg.n_envs, self.frame_shape,
+                                    seed=replay_seed)
+        self.rng = np.random.default_rng(act_seed)
+        self.steps = 0
+        self.update_credit = 0.0
+        self.episodes = 0
+        self.curve: list[dict] = []
+        self._window = {"returns": [], "success": [], "lengths": [], "loss": [], "q": []}
+        self._ret = np.zeros(cfg.n_envs)
+        self._len = np.zeros(cfg.n_envs, dtype=np.int64)
+        self.frames = None
+        self.state = None
+        self.stacker = FrameStacker(cfg.n_envs, cfg.stack, self.frame_shape)
+
+    # -- the loop -------------------------------------------------------------------
+    def _start(self):
+        frames = self.flights.reset()
+        self.replay.start_episodes(np.arange(self.cfg.n_envs), frames)
+        self.stacker.reset(np.arange(self.cfg.n_envs), frames)
+        self.state = self.agent.initial_state(self.cfg.n_envs)
+
+    def vector_step(self):
+        cfg = self.cfg
+        eps = epsilon_at(cfg, self.steps)
+        actions, _, self.state = self.agent.act(self.stacker.obs, self.state, eps, self.rng)
+        res = self.flights.step(actions)
+        done = res.terminated | res.truncated
+        self.replay.add_step(actions, res.rewards, res.terminated, res.truncated,
+                             res.final_frames)
+        self._ret += res.rewards
+        self._len += 1
+        if done.any():
+            idx = np.flatnonzero(done)
+            for i in idx:
+                self._window["returns"].append(float(self._ret[i]))
+                self._window["success"].append(float(res.success[i]))
+                self._window["lengths"].append(int(self._len[i]))
+            self._ret[idx] = 0
+            self._len[idx] = 0
+            self.episodes += len(idx)
+            self.replay.start_episodes(idx, res.frames[idx])
+            self.state = self.agent.reset_state(self.state, done)
+        live = np.flatnonzero(~done)
+        self.stacker.push(res.frames[live], live)
+        if done.any():
+            self.stacker.reset(np.flatnonzero(done), res.frames[done])
+        self.steps += cfg.n_envs
+        if self.steps >= cfg.learning_starts:
+            self.update_credit += cfg.updates_per_step
+            while self.update_credit >= 1.0:
+                self.update_credit -= 1.0
+                batch = self.replay.sample(cfg.batch_size, cfg.seq_len, cfg.stack)
+                info = self.agent.update(batch)
+                self._window["loss"].append(info["loss"])
+                self._window["q"].append(info["q_mean"])
+
+    def _log_row(self, elapsed: float):
+        w = self._window
+        row = {"steps": self.steps, "updates": self.agent.updates, "episodes": self.episodes,
+               "epsilon": round(epsilon_at(self.cfg, self.steps), 4),
+               "return": float(np.mean(w["returns"])) if w["returns"] else float("nan"),
+               "success": float(np.mean(w["success"])) if w["success"] else float("nan"),
+               "length": float(np.mean(w["lengths"])) if w["lengths"] else float("nan"),
+               "loss": float(np.mean(w["loss"])) if w["loss"] else float("nan"),
+               "q_mean": float(np.mean(w["q"])) if w["q"] else float("nan"),
+               "seconds": round(elapsed, 1)}
+        self.curve.append(row)
+        for v in w.values():
+            v.clear()
+        self.write_curve()
+        return row
+
+    def write_curve(self):
+        if not self.curve:
+            return
+        path = self.out / "curve.csv"
+        with open(path, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(self.curve[0]))
+            writer.writeheader()
+            writer.writerows(self.curve)
+        try:
+            from ..viz import learning_curve_png
+            learning_curve_png(self.curve, self.out / "curve.png",
+                               title=f"{self.cfg.variant} on {self.cfg.scenario}, seed {self.cfg.seed}")
+        except Exception as e:  # a plotting problem must never stop a training run
+            print(f"warning: learning-curve PNG not written: {e}")
+
+    def run(self, until: int | None = None) -> dict:
+        cfg = self.cfg
+        until = cfg.total_steps if until is None else min(until, cfg.total_steps)
+        if self.frames is None and self.steps == 0:
+            self._start()
+            self.frames = True
+        t0 = time.time() - (self.curve[-1]["seconds"] if self.curve else 0.0)
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+            bar = tqdm(total=cfg.total_steps, initial=self.steps, unit="step",
+                       desc=f"train {cfg.variant}", dynamic_ncols=True)
+        next_log = (self.steps // cfg.log_every + 1) * cfg.log_every
+        next_ckpt = (self.steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+        while self.steps < until:
+            self.vector_step()
+            if bar is not None:
+                bar.update(cfg.n_envs)
+            if self.steps >= next_log:
+                row = self._log_row(time.time() - t0)
+                next_log += cfg.log_every
+                if bar is not None:
+                    bar.set_postfix(success=f"{row['success']:.2f}", ret=f"{row['return']:.1f}",
+                                    eps=f"{row['epsilon']:.2f}")
+            if self.steps >= next_ckpt:
+                self.save_checkpoint()
+                next_ckpt += cfg.checkpoint_every
+        if bar is not None:
+            bar.close()
+        self.save_checkpoint()
+        return self.curve[-1] if self.curve else {}
+
+    # -- checkpoints ----------------------------------------------------------------
+    def save_checkpoint(self, path=None) -> Path:
+        path = Path(path or self.out / "checkpoint.npz")
+        arrays = {f"agent.{k}": v for k, v in self.agent.state_dict().items()}
+        arrays.update({f"replay.{k}": v for k, v in self.replay.state_dict().items()})
+        arrays.update({f"flights.{k}": v for k, v in self.flights.state_dict().items()})
+        arrays["stacker"] = self.stacker.buf
+        arrays["ret"] = self._ret
+        arrays["len"] = self._len
+        if self.state is not None:
+            arrays["state_h"], arrays["state_c"] = self.state[0].data, self.state[1].data
+        meta = {"config": self.cfg.to_dict(), "steps": self.steps, "episodes": self.episodes,
+                "update_credit": self.update_credit, "curve": self.curve,
+                "window": self._window, "rng": _rng_state(self.rng),
+                "replay_rng": _rng_state(self.replay.rng),
+                "flights_meta": self.flights.meta_state()}
+        save_npz(path, arrays, meta)
+        self.save_model(self.out / "model.npz")
+        return path
+
+    def save_model(self, path, extra: dict | None = None) -> Path:
+        meta = {"kind": "qnet", "qnet_config": self.agent.qnet_config.to_dict(),
+                "train_config": self.cfg.to_dict(), "steps": self.steps,
+                "updates": self.agent.updates, **(extra or {})}
+        return self.agent.online.save(path, meta)
+
+    @classmethod
+    def resume(cls, out_dir, depth_estimator=None, progress: bool = True,
+               total_steps: int | None = None) -> "Trainer":
+        from ..autograd import Tensor
+        arrays, meta = load_npz(Path(out_dir) / "checkpoint.npz")
+        cfg = TrainConfig.from_dict(meta["config"])
+        if total_steps is not None:
+            cfg.total_steps = total_steps
+        tr = cls(cfg, out_dir, depth_estimator=depth_estimator, progress=progress)
+
+        def part(prefix):
+            return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
+        tr.agent.load_state_dict(part("agent."))
+        tr.replay.load_state_dict(part("replay."))
+        tr.flights.load_state_dict(part("flights."), meta["flights_meta"])
+        tr.stacker.buf[...] = arrays["stacker"]
+        tr._ret[...] = arrays["ret"]
+        tr._len[...] = arrays["len"]
+        if "state_h" in arrays:
+            tr.state = (Tensor(arrays["state_h"].copy()), Tensor(arrays["state_c"].copy()))
+        tr.steps, tr.episodes = meta["steps"], meta["episodes"]
+        tr.update_credit = meta["update_credit"]
+        tr.curve = meta["curve"]
+        tr._window = meta["window"]
+        _set_rng_state(tr.rng, meta["rng"])
+        _set_rng_state(tr.replay.rng, meta["replay_rng"])
+        tr.frames = True
+        return tr
+
+
+def train(cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True,
+          resume: bool = False) -> Trainer:
+    """Train (or resume, if ``resume`` and a checkpoint exists) and return the trainer."""
+    ckpt = Path(out_dir) / "checkpoint.npz"
+    if resume and ckpt.exists():
+        tr = Trainer.resume(out_dir, depth_estimator, progress, total_steps=cfg.total_steps)
+    else:
+        tr = Trainer(cfg, out_dir, depth_estimator, progress)
+    tr.run()
+    return tr
+
+
+__all__ = ["TrainConfig", "Trainer", "train", "epsilon_at"]

@@ -1,0 +1,225 @@
+"""Pictures with Pillow only: colour maps, image grids, GIFs, bar charts and curves.
+
+Every function takes NumPy arrays and returns uint8 RGB arrays (H, W, 3) or writes a
+file; nothing here needs matplotlib.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+# Control points of two perceptual maps (sampled from the published viridis / magma).
+_MAPS = {
+    "viridis": [(68, 1, 84), (72, 40, 120), (62, 74, 137), (49, 104, 142), (38, 130, 142),
+                (31, 158, 137), (53, 183, 121), (110, 206, 88), (181, 222, 43),
+                (253, 231, 37)],
+    "magma": [(0, 0, 4), (28, 16, 68), (79, 18, 123), (129, 37, 129), (181, 54, 122),
+              (229, 80, 100), (251, 135, 97), (254, 194, 135), (252, 253, 191)],
+}
+
+
+def colormap(values: np.ndarray, name: str = "magma", vmin=None, vmax=None) -> np.ndarray:
+    """Map a 2-D array to RGB uint8 (H, W, 3) by linear interpolation in a colour map."""
+    if name not in _MAPS:
+        raise ValueError(f"colormap: name must be one of {sorted(_MAPS)}; got {name!r}")
+    v = np.asarray(values, dtype=np.float64)
+    lo = np.nanmin(v) if vmin is None else vmin
+    hi = np.nanmax(v) if vmax is None else vmax
+    t = np.clip((v - lo) / (hi - lo if hi > lo else 1.0), 0.0, 1.0)
+    t = np.nan_to_num(t)
+    pts = np.asarray(_MAPS[name], dtype=np.float64)
+    x = t * (len(pts) - 1)
+    i = np.minimum(x.astype(int), len(pts) - 2)
+    f = (x - i)[..., None]
+    return np.rint(pts[i] * (1 - f) + pts[i + 1] * f).astype(np.uint8)
+
+
+def depth_to_rgb(depth: np.ndarray, max_depth: float | None = None) -> np.ndarray:
+    """Near = bright, far = dark (inverse depth through magma), like the paper's figures."""
+    d = np.asarray(depth, dtype=np.float64)
+    inv = 1.0 / np.maximum(d, 1e-3)
+    lo = 1.0 / max_depth if max_depth else np.nanpercentile(inv, 2)
+    hi = np.nanpercentile(inv, 98)
+    return colormap(inv, "magma", lo, max(hi, lo + 1e-6))
+
+
+def resize(img: np.ndarray, height: int, width: int | None = None) -> np.ndarray:
+    """Nearest-neighbour resize of an RGB/grey uint8 image to (height, width)."""
+    im = Image.fromarray(np.asarray(img))
+    if width is None:
+        width = max(1, round(im.width * height / im.height))
+    return np.asarray(im.resize((int(width), int(height)), Image.NEAREST))
+
+
+def to_rgb(img: np.ndarray) -> np.ndarray:
+    a = np.asarray(img)
+    if a.dtype != np.uint8:
+        a = np.clip(np.rint(a * 255 if a.max() <= 1.0 else a), 0, 255).astype(np.uint8)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=2)
+    return a
+
+
+def hstack(images, height: int, gap: int = 4, fill=255) -> np.ndarray:
+    """Resize every image to ``height`` rows and put them side by side."""
+    parts = []
+    for k, im in enumerate(images):
+        if k:
+            parts.append(np.full((height, gap, 3), fill, np.uint8))
+        parts.append(resize(to_rgb(im), height))
+    return np.concatenate(parts, axis=1)
+
+
+def image_grid(images, cols: int, gap: int = 2, fill=255) -> np.ndarray:
+    """Tile equally sized images into a grid of ``cols`` columns."""
+    images = [to_rgb(im) for im in images]
+    h, w = images[0].shape[:2]
+    rows = math.ceil(len(images) / cols)
+    out = np.full((rows * h + (rows - 1) * gap, cols * w + (cols - 1) * gap, 3), fill, np.uint8)
+    for k, im in enumerate(images):
+        r, c = divmod(k, cols)
+        out[r * (h + gap):r * (h + gap) + h, c * (w + gap):c * (w + gap) + w] = im
+    return out
+
+
+def label(img: np.ndarray, text: str, xy=(3, 2), color=(255, 255, 255)) -> np.ndarray:
+    """Draw ``text`` on a copy of ``img``."""
+    im = Image.fromarray(to_rgb(img).copy())
+    ImageDraw.Draw(im).text(xy, text, fill=color, font=ImageFont.load_default())
+    return np.asarray(im)
+
+
+def bar_chart(values, names, size=(160, 120), highlight: int | None = None,
+              title: str = "") -> np.ndarray:
+    """Vertical bars (e.g. Q-values per action), zero line included, as an RGB image."""
+    w, h = size
+    im = Image.new("RGB", (w, h), (255, 255, 255))
+    d = ImageDraw.Draw(im)
+    font = ImageFont.load_default()
+    v = np.asarray(values, dtype=np.float64)
+    lo, hi = min(0.0, float(v.min())), max(0.0, float(v.max()))
+    span = hi - lo if hi > lo else 1.0
+    top, bottom = 16, h - 14
+    zero = bottom - (0 - lo) / span * (bottom - top)
+    bw = (w - 8) / len(v)
+    for k, val in enumerate(v):
+        x0 = 4 + k * bw + 2
+        y = bottom - (val - lo) / span * (bottom - top)
+        colour = (220, 80, 40) if k == highlight else (70, 110, 180)
+        d.rectangle([x0, min(y, zero), x0 + bw - 4, max(y, zero)], fill=colour)
+        d.text((x0, bottom + 1), str(names[k])[:5], fill=(0, 0, 0), font=font)
+    d.line([4, zero, w - 4, zero], fill=(0, 0, 0))
+    if title:
+        d.text((4, 2), title, fill=(0, 0, 0), font=font)
+    return np.asarray(im)
+
+
+def write_gif(frames, path, fps: float = 5.0) -> Path:
+    """Write RGB uint8 frames (all the same size) as a looping GIF."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ims = [Image.fromarray(to_rgb(f)) for f in frames]
+    if not ims:
+        raise ValueError("write_gif: frames is empty")
+    ims[0].save(path, save_all=True, append_images=ims[1:], duration=int(1000 / fps), loop=0,
+                optimize=False)
+    return path
+
+
+_COLOURS = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14),
+            (23, 190, 207)]
+
+
+def line_plot(series: dict, path=None, size=(520, 300), title: str = "", xlabel: str = "",
+              ylabel: str = "", ylim=None) -> np.ndarray:
+    """Plot {name: (x, y)} as lines with axes, ticks and a legend; optionally save a PNG."""
+    w, h = size
+    im = Image.new("RGB", (w, h), (255, 255, 255))
+    d = ImageDraw.Draw(im)
+    font = ImageFont.load_default()
+    left, right, top, bottom = 52, w - 10, 22, h - 34
+    xs = [np.asarray(x, float) for x, _ in series.values()]
+    ys = [np.asarray(y, float) for _, y in series.values()]
+    allx = np.concatenate(xs) if xs else np.zeros(1)
+    ally = np.concatenate(ys) if ys else np.zeros(1)
+    ally = ally[np.isfinite(ally)] if np.isfinite(ally).any() else np.zeros(1)
+    x0, x1 = float(allx.min()), float(allx.max())
+    y0, y1 = (float(ally.min()), float(ally.max())) if ylim is None else ylim
+    if x1 <= x0:
+        x1 = x0 + 1
+    if y1 <= y0:
+        y1 = y0 + 1
+
+    def px(x, y):
+        return (left + (x - x0) / (x1 - x0) * (right - left),
+                bottom - (y - y0) / (y1 - y0) * (bottom - top))
+
+    d.rectangle([left, top, right, bottom], outline=(0, 0, 0))
+    for k in range(5):
+        yv = y0 + k * (y1 - y0) / 4
+        _, yy = px(x0, yv)
+        d.line([left - 3, yy, left, yy], fill=(0, 0, 0))
+        d.line([left + 1, yy, right - 1, yy], fill=(235, 235, 235))
+        d.text((2, yy - 5), f"{yv:.3g}", fill=(0, 0, 0), font=font)
+        xv = x0 + k * (x1 - x0) / 4
+        xx, _ = px(xv, y0)
+        d.line([xx, bottom, xx, bottom + 3], fill=(0, 0, 0))
+        d.text((xx - 12, bottom + 5), f"{xv:.3g}", fill=(0, 0, 0), font=font)
+    for k, (name, (x, y)) in enumerate(series.items()):
+        colour = _COLOURS[k % len(_COLOURS)]
+        pts = [px(a, b) for a, b in zip(np.asarray(x, float), np.asarray(y, float))
+               if np.isfinite(b)]
+        if len(pts) > 1:
+            d.line(pts, fill=colour, width=2)
+        elif pts:
+            d.ellipse([pts[0][0] - 2, pts[0][1] - 2, pts[0][0] + 2, pts[0][1] + 2], fill=colour)
+        d.text((left + 6, top + 4 + 12 * k), name, fill=colour, font=font)
+    if title:
+        d.text((left, 5), title, fill=(0, 0, 0), font=font)
+    if xlabel:
+        d.text(((left + right) / 2 - 3 * len(xlabel), h - 14), xlabel, fill=(0, 0, 0), font=font)
+    if ylabel:
+        d.text((2, 5), ylabel, fill=(0, 0, 0), font=font)
+    arr = np.asarray(im)
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        im.save(path)
+    return arr
+
+
+def learning_curve_png(rows, path, title: str = "") -> Path:
+    """Two panels from training-curve rows: episode return, and success rate, vs steps."""
+    steps = [r["steps"] for r in rows]
+    ret = line_plot({"episode return": (steps, [r["return"] for r in rows])},
+                    title=title, xlabel="environment steps")
+    suc = line_plot({"success rate (training flights)": (steps, [r["success"] for r in rows])},
+                    xlabel="environment steps", ylim=(0.0, 1.0))
+    out = np.concatenate([ret, suc], axis=0)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(out).save(path)
+    return path
+
+
+def compare_curves_png(curves: dict, path, key: str = "success", title: str = "",
+                       smooth: int = 1) -> Path:
+    """One panel with one line per run ({name: rows}), e.g. the four models' success."""
+    series = {}
+    for name, rows in curves.items():
+        y = np.asarray([r[key] for r in rows], float)
+        if smooth > 1 and len(y) >= smooth:
+            y = np.convolve(np.nan_to_num(y), np.ones(smooth) / smooth, mode="valid")
+            x = [r["steps"] for r in rows][smooth - 1:]
+        else:
+            x = [r["steps"] for r in rows]
+        series[name] = (x, y)
+    ylim = (0.0, 1.0) if key == "success" else None
+    line_plot(series, path, title=title, xlabel="environment steps", ylabel=key, ylim=ylim)
+    return Path(path)
+
+
+__all__ = ["colormap", "depth_to_rgb", "resize", "to_rgb", "hstack", "image_grid", "label",
+           "bar_chart", "write_gif", "line_plot", "learning_curve_png", "compare_curves_png"]

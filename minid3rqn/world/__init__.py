@@ -1,0 +1,31 @@
+"""The 2.5D world: scenes, a pinhole ray-casting camera, the drone environment.
+
+Flow: ``make_scene`` builds a world (pymunk shapes + NumPy arrays); ``render`` /
+``render_batch`` ray-cast RGB and ground-truth depth through a ``Camera``; ``DroneEnv`` /
+``VecDroneEnv`` fly the drone (actions, reward, collision); the policies fly baselines;
+``topdown`` draws a map; ``calibrate`` measures baseline success rates.
+"""
+from .calibrate import calibrate
+from .camera import Camera
+from .distance import (ClearanceField, clearance_field, nearest_distance, nearest_distance_batch,
+                       pymunk_nearest_distance, sample_start_pose)
+from .env import Box, Discrete, DroneEnv, VecDroneEnv
+from .geometry import (backproject, inverse_warp_numpy, pose_to_camera_transform, project,
+                       relative_transform)
+from .kinematics import (ACTION_INTERVAL, ACTIONS, SAFE_DISTANCE, integrate_arc, paper_reward)
+from .policies import (Oracle, oracle_action, oracle_policy, pilot_policy, random_policy,
+                       straight_policy)
+from .renderer import render, render_batch
+from .scenarios import SCENARIOS, make_scene
+from .scene import Scene, SceneBatch
+from .topview import depth_to_rgb, save_gif, topdown
+
+__all__ = [
+    "Camera", "Scene", "SceneBatch", "SCENARIOS", "make_scene", "render", "render_batch",
+    "nearest_distance", "nearest_distance_batch", "pymunk_nearest_distance",
+    "ClearanceField", "clearance_field", "sample_start_pose", "pose_to_camera_transform",
+    "relative_transform", "backproject", "project", "inverse_warp_numpy", "ACTIONS",
+    "ACTION_INTERVAL", "SAFE_DISTANCE", "integrate_arc", "paper_reward", "Discrete", "Box",
+    "DroneEnv", "VecDroneEnv", "straight_policy", "random_policy", "Oracle", "oracle_policy",
+    "oracle_action", "pilot_policy", "topdown", "depth_to_rgb", "save_gif", "calibrate",
+]

@@ -1,0 +1,185 @@
+"""Procedural, world-anchored surface appearance: colour as a function of a surface point.
+
+Every surface point has 2D texture coordinates (s, h) in metres: on walls and prisms
+s is the arc length along the obstacle's outline and h the height above the floor; on
+the floor and the ceiling (s, h) = (x, y) in the world. The colour of a point is
+
+    p(s, h)   = 1/2 + a_b w_b (B(s, h) - 1/2) + a_n w_n (N(s, h) - 1/2)      in [0, 1]
+    colour    = gain * shade * (c0 + (c1 - c0) p)
+
+- B: blocks. Cells of su x sv metres (rows offset by ``stagger`` cells, like bricks),
+  each with a value drawn from a fixed random lattice.
+- N: smooth value noise on a lattice of n metres, bilinear with smoothstep weights.
+- c0, c1: the appearance's two colours; w_b + w_n = 1 their pattern weights.
+- shade: walls 0.6 + 0.4 (1 + n . l) / 2 with n the outward surface normal and l a fixed
+  horizontal light direction (view-independent); 1 on the floor and the ceiling.
+- a_b, a_n in [0, 1]: anti-aliasing. A pixel covers about f = Z / (fx cos theta)
+  metres of surface (Z its depth, theta the angle between ray and normal); a pattern of
+  cell size L needs two or more pixels per cell, so its contrast is faded by
+  a = clip((L / f - 1) / 2, 0, 1): full at three pixels per cell, gone at one. Far
+  or grazing surfaces thus show their mean colour instead of aliasing noise, much as a
+  real camera averages over the pixel's footprint.
+
+So the colour depends on the surface point alone (up to that pre-filter), which keeps
+views of the same point consistent, as photometric view synthesis needs.
+
+The appearance table is a float32 array (A, N_PARAMS), one row per appearance; the
+named column indices are below.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+# Columns of an appearance row.
+SU, SV, STAGGER, W_BLOCK, W_NOISE, NOISE_SCALE, OFF_X, OFF_Y, GAIN = range(9)
+C0 = slice(9, 12)
+C1 = slice(12, 15)
+N_PARAMS = 15
+
+LATTICE_BITS = 6
+LATTICE_SIZE = 1 << LATTICE_BITS            # 64 x 64 values, tiles every 64 cells
+LATTICE = np.random.default_rng(20200207).random((LATTICE_SIZE, LATTICE_SIZE)).astype(np.float32)
+LIGHT = np.array([np.cos(0.7), np.sin(0.7)])  # fixed horizontal light direction (unit)
+
+FLOOR_ID = 0        # appearance row of the floor in every scene
+CEILING_ID = 1      # appearance row of the ceiling in every scene
+
+
+def make_appearance(c0, c1, su=0.4, sv=0.4, stagger=0.0, w_block=0.6, noise_scale=0.8,
+                    offset=(0, 0), gain=1.0) -> np.ndarray:
+    """One appearance row (N_PARAMS,) float32.
+
+    c0, c1: RGB in [0, 1]; su, sv: block size (m) along the surface and upwards; stagger:
+    row offset in cells (0.5 = bricks); w_block: weight of blocks (noise gets 1 - w_block);
+    noise_scale: value-noise cell (m); offset: integer lattice offsets that make two
+    appearances with equal parameters look different; gain: overall brightness.
+    """
+    for name, value in (("su", su), ("sv", sv), ("noise_scale", noise_scale)):
+        if not value > 0:
+            raise ValueError(f"make_appearance: {name} must be > 0; got {value}")
+    if not 0.0 <= w_block <= 1.0:
+        raise ValueError(f"make_appearance: w_block must lie in [0, 1]; got {w_block}")
+    if not 0.0 < gain <= 1.0:
+        raise ValueError(f"make_appearance: gain must lie in (0, 1]; got {gain}")
+    row = np.zeros(N_PARAMS, np.float32)
+    row[[SU, SV, STAGGER, W_BLOCK, W_NOISE, NOISE_SCALE, OFF_X, OFF_Y, GAIN]] = (
+        su, sv, stagger, w_block, 1.0 - w_block, noise_scale, offset[0], offset[1], gain)
+    row[C0] = np.clip(c0, 0, 1)
+    row[C1] = np.clip(c1, 0, 1)
+    return row
+
+
+def random_appearance(rng: np.random.Generator, hue_range=(0.0, 1.0), sat=(0.35, 0.75),
+                      val=(0.45, 0.9), size=(0.25, 0.6), gain=1.0) -> np.ndarray:
+    """A random appearance row: a base colour of hue in ``hue_range`` (fractions of the
+    colour wheel), a contrasting accent, and block/noise sizes drawn from ``size`` (m)."""
+    h = rng.uniform(*hue_range) % 1.0
+    s, v = rng.uniform(*sat), rng.uniform(*val)
+    c0 = hsv_to_rgb(h, s, v)
+    c1 = hsv_to_rgb((h + rng.uniform(-0.08, 0.08)) % 1.0, s * rng.uniform(0.3, 0.9),
+                    np.clip(v * rng.uniform(0.35, 0.65) + rng.choice([0.0, 0.45]), 0, 1))
+    su = rng.uniform(*size)
+    kind = rng.integers(4)       # 0 blocks, 1 bricks, 2 vertical planks, 3 horizontal bands
+    sv = {0: su, 1: su * 0.5, 2: 4.0, 3: su * 0.6}[int(kind)]
+    su = {0: su, 1: su, 2: su * 0.6, 3: 4.0}[int(kind)]
+    return make_appearance(c0, c1, su=su, sv=sv, stagger=0.5 if kind == 1 else 0.0,
+                           w_block=rng.uniform(0.45, 0.85), noise_scale=rng.uniform(0.5, 1.2),
+                           offset=rng.integers(0, LATTICE_SIZE, 2), gain=gain)
+
+
+def hsv_to_rgb(h, s, v) -> np.ndarray:
+    """HSV in [0, 1]^3 -> RGB in [0, 1]^3 (one colour)."""
+    i = int(h * 6.0) % 6
+    f = h * 6.0 - int(h * 6.0)
+    p, q, t = v * (1 - s), v * (1 - f * s), v * (1 - (1 - f) * s)
+    return np.array([(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v), (v, p, q)][i])
+
+
+def _smooth_noise_image(factor: int = 8) -> np.ndarray:
+    """LATTICE upsampled ``factor`` times with smoothstep-weighted bilinear interpolation,
+    wrapping at the edges: (64 factor, 64 factor) float32 value noise."""
+    t = np.arange(factor) / factor
+    w = (t * t * (3 - 2 * t))[None, :, None]
+
+    def upsample_rows(a):                  # row i f + k = (1 - w_k) a[i] + w_k a[i + 1]
+        return ((1 - w) * a[:, None, :] + w * np.roll(a, -1, axis=0)[:, None, :]).reshape(-1, a.shape[1])
+
+    return upsample_rows(upsample_rows(LATTICE).T).T.astype(np.float32)
+
+
+NOISE_FACTOR = 8                       # noise texels per lattice cell
+NOISE = _smooth_noise_image(NOISE_FACTOR)
+NOISE_BITS = LATTICE_BITS + 3          # NOISE is 2**NOISE_BITS square
+
+# Derived per-appearance constants, the form the renderer reads (see ``derived_table``).
+(D_INV_SU, D_INV_SV, D_STAGGER, D_OX, D_OY, D_INV_NS, D_NOX, D_NOY, D_LB, D_LN) = range(10)
+D_C0 = slice(10, 13)
+D_DC = slice(13, 16)
+D_WB, D_WN, D_GAIN = 16, 17, 18
+N_DERIVED = 19
+D_AMP_B, D_AMP_N = D_LB, D_LN      # rows the renderer overwrites with the faded weights
+
+
+def derived_table(apps: np.ndarray) -> np.ndarray:
+    """Appearance rows (..., N_PARAMS) -> renderer constants (..., N_DERIVED) float32:
+    1/su, 1/sv, stagger, block offsets, NOISE texels per metre, noise offsets, the cell
+    sizes L used by the anti-aliasing fade, the colours in 8-bit units with the gain
+    applied, 255 gain c0 and 255 gain (c1 - c0), the pattern weights and the gain."""
+    apps = np.asarray(apps, np.float32)
+    d = np.zeros(apps.shape[:-1] + (N_DERIVED,), np.float32)
+    with np.errstate(divide="ignore"):
+        d[..., D_INV_SU] = 1.0 / apps[..., SU]
+        d[..., D_INV_SV] = 1.0 / apps[..., SV]
+        d[..., D_INV_NS] = NOISE_FACTOR / apps[..., NOISE_SCALE]
+    d[..., D_STAGGER] = apps[..., STAGGER]
+    d[..., D_OX], d[..., D_OY] = apps[..., OFF_X], apps[..., OFF_Y]
+    d[..., D_NOX] = (apps[..., OFF_Y] + 17) * NOISE_FACTOR
+    d[..., D_NOY] = (apps[..., OFF_X] + 29) * NOISE_FACTOR
+    d[..., D_LB] = np.minimum(apps[..., SU], apps[..., SV])
+    d[..., D_LN] = apps[..., NOISE_SCALE]
+    d[..., D_WB], d[..., D_WN] = apps[..., W_BLOCK], apps[..., W_NOISE]
+    d[..., D_GAIN] = apps[..., GAIN]
+    d[..., D_C0] = 255.0 * apps[..., GAIN, None] * apps[..., C0]
+    d[..., D_DC] = 255.0 * apps[..., GAIN, None] * (apps[..., C1] - apps[..., C0])
+    return d
+
+
+def fade(q, footprint):
+    """Pattern amplitudes a_b w_b and a_n w_n of appearance constants q (..., N_DERIVED)
+    seen with pixel footprint ``footprint`` (...) metres: a = clip((L / f - 1) / 2, 0, 1)."""
+    half = 0.5 / footprint
+    a_b = np.minimum(np.maximum(q[..., D_LB] * half - 0.5, 0.0), 1.0)
+    a_n = np.minimum(np.maximum(q[..., D_LN] * half - 0.5, 0.0), 1.0)
+    return a_b * q[..., D_WB], a_n * q[..., D_WN]
+
+
+def pattern(s, h, q) -> np.ndarray:
+    """The pattern value p(s, h) in [0, 1] (module docstring).
+
+    s, h: (...) float32 texture coordinates; q: sequence indexed by the D_ constants of
+    arrays broadcastable to s: each point's derived constants, with the rows D_AMP_B and
+    D_AMP_N holding the faded pattern weights a_b w_b and a_n w_n (``fade``).
+    """
+    # Blocks: row j = floor(h / sv), column i = floor(s / su + stagger (j mod 2)).
+    j = np.floor(h * q[D_INV_SV] + q[D_OY]).astype(np.int32)
+    odd = (j & 1).astype(s.dtype)
+    i = np.floor(s * q[D_INV_SU] + q[D_OX] + q[D_STAGGER] * odd).astype(np.int32)
+    m = LATTICE_SIZE - 1
+    block = LATTICE.ravel().take(((j & m) << LATTICE_BITS) | (i & m))
+    # Smooth value noise, read from the pre-interpolated NOISE image.
+    mn = (1 << NOISE_BITS) - 1
+    ni = (s * q[D_INV_NS] + q[D_NOX]).astype(np.int32)
+    nj = (h * q[D_INV_NS] + q[D_NOY]).astype(np.int32)
+    noise = NOISE.ravel().take(((nj & mn) << NOISE_BITS) | (ni & mn))
+    return 0.5 + q[D_AMP_B] * (block - 0.5) + q[D_AMP_N] * (noise - 0.5)
+
+
+def wall_shade(n_dot_l) -> np.ndarray:
+    """Half-Lambert shade of vertical surfaces, 0.6 + 0.4 (1 + n . l) / 2, from the cosine
+    n . l between the unit surface normal and the light direction ``LIGHT``."""
+    return 0.6 + 0.2 * (1.0 + np.asarray(n_dot_l))
+
+
+__all__ = ["N_PARAMS", "N_DERIVED", "FLOOR_ID", "CEILING_ID", "LATTICE", "NOISE", "LIGHT",
+           "make_appearance", "random_appearance", "hsv_to_rgb", "derived_table", "fade",
+           "pattern", "wall_shade"]

@@ -1,0 +1,289 @@
+"""Convolution, transposed convolution, upsampling and pooling: gradients against
+central differences (float64), values against naive loops, and clear errors."""
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from minid3rqn.autograd import Tensor, gradcheck
+from minid3rqn.autograd import conv as conv_module
+from minid3rqn.autograd.conv import (avg_pool2d, conv2d, conv_transpose2d, max_pool2d,
+                                     upsample)
+from minid3rqn.autograd.elementwise import relu
+
+pytestmark = pytest.mark.conv
+
+
+def rand(*shape, seed=0):
+    return np.random.default_rng([seed, *shape]).standard_normal(shape)
+
+
+def naive_conv2d(x, w, b, stride, padding):
+    """The definition, one output entry at a time."""
+    (sh, sw), (ph, pw) = stride, padding
+    xp = np.pad(x, ((0, 0), (0, 0), (ph, ph), (pw, pw)))
+    N, _, Hp, Wp = xp.shape
+    O, C, KH, KW = w.shape
+    OH, OW = (Hp - KH) // sh + 1, (Wp - KW) // sw + 1
+    y = np.zeros((N, O, OH, OW))
+    for n in range(N):
+        for o in range(O):
+            for u in range(OH):
+                for v in range(OW):
+                    window = xp[n, :, u * sh:u * sh + KH, v * sw:v * sw + KW]
+                    y[n, o, u, v] = np.sum(window * w[o]) + (0 if b is None else b[o])
+    return y
+
+
+# -- conv2d ------------------------------------------------------------------------------
+# (N, C_in, C_out, H, W, KH, KW, stride, padding, bias)
+CONV_CASES = [
+    (2, 3, 4, 5, 6, 3, 3, 1, 0, True),
+    (2, 2, 3, 6, 7, 3, 3, 1, 1, False),          # odd sizes, "same" padding
+    (1, 2, 3, 7, 9, 3, 2, 2, 1, True),           # non-square kernel, stride 2
+    (2, 1, 2, 8, 7, 4, 4, 2, 0, True),           # the QNet's 4x4 stride 2
+    (1, 2, 2, 9, 8, 2, 3, 3, (1, 2), True),      # stride 3, padding pair
+    (1, 3, 2, 5, 7, 1, 1, (2, 3), 0, True),      # 1x1 kernel, stride pair
+    (1, 2, 2, 4, 5, 5, 3, 1, 2, False),          # kernel larger than the image
+    (1, 2, 2, 7, 7, 3, 3, 4, 1, True),           # stride larger than the kernel
+    (1, 5, 2, 5, 6, 3, 3, 1, 1, True),           # window rows of 15 values: pixel-major
+    (2, 4, 3, 7, 6, 4, 3, 2, 1, False),          # 12 values: pixel-major, stride 2
+]
+
+
+@pytest.mark.parametrize("case", CONV_CASES)
+def test_conv2d_gradcheck(case):
+    N, C, O, H, W, KH, KW, stride, padding, bias = case
+    arrays = [rand(N, C, H, W, seed=1), rand(O, C, KH, KW, seed=2)]
+    if bias:
+        arrays.append(rand(O, seed=3))
+    gradcheck(lambda x, w, *b: conv2d(x, w, b[0] if b else None, stride, padding), arrays)
+
+
+@pytest.mark.parametrize("case", CONV_CASES)
+def test_conv2d_matches_naive_loop(case):
+    N, C, O, H, W, KH, KW, stride, padding, bias = case
+    x, w, b = rand(N, C, H, W, seed=4), rand(O, C, KH, KW, seed=5), rand(O, seed=6)
+    b = b if bias else None
+    pair = lambda v: v if isinstance(v, tuple) else (v, v)  # noqa: E731
+    expected = naive_conv2d(x, w, b, pair(stride), pair(padding))
+    got = conv2d(x, w, b, stride, padding)
+    assert got.shape == expected.shape
+    np.testing.assert_allclose(got.data, expected, rtol=1e-12, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 2), st.integers(1, 5), st.integers(1, 3), st.integers(1, 9),
+       st.integers(1, 9), st.integers(1, 4), st.integers(1, 4), st.integers(1, 3),
+       st.integers(1, 3), st.integers(0, 2), st.integers(0, 2))
+def test_conv2d_and_its_adjoint_on_random_geometry(N, C, O, H, W, KH, KW, sh, sw, ph, pw):
+    """Any geometry that fits: values match the naive loop, and conv_transpose2d
+    (with the output_padding that restores x's size) is conv2d's adjoint."""
+    if KH > H + 2 * ph or KW > W + 2 * pw:
+        with pytest.raises(ValueError, match="kernel"):
+            conv2d(rand(N, C, H, W), rand(O, C, KH, KW), None, (sh, sw), (ph, pw))
+        return
+    x, w, b = rand(N, C, H, W, seed=1), rand(O, C, KH, KW, seed=2), rand(O, seed=3)
+    y = conv2d(x, w, b, (sh, sw), (ph, pw)).data
+    np.testing.assert_allclose(y, naive_conv2d(x, w, b, (sh, sw), (ph, pw)),
+                               rtol=1e-12, atol=1e-12)
+    OH, OW = y.shape[2:]
+    v = rand(*y.shape, seed=4)
+    out_pad = (H + 2 * ph - KH - (OH - 1) * sh, W + 2 * pw - KW - (OW - 1) * sw)
+    tv = conv_transpose2d(v, w, None, (sh, sw), (ph, pw), out_pad).data
+    assert tv.shape == x.shape
+    np.testing.assert_allclose(np.sum((y - b[:, None, None]) * v), np.sum(x * tv),
+                               rtol=1e-10, atol=1e-10)
+
+
+def test_conv2d_hand_computed():
+    """A 1-channel 3x3 image, a 2x2 kernel: each output is a sum of a 2x2 window."""
+    x = np.arange(9.0).reshape(1, 1, 3, 3)
+    w = np.ones((1, 1, 2, 2))
+    y = conv2d(x, w, np.array([0.5]))
+    np.testing.assert_array_equal(y.data[0, 0], [[8.5, 12.5], [20.5, 24.5]])
+
+
+def test_conv2d_without_input_gradient():
+    """The first layer of a network: gradients for the weights and bias only."""
+    gradcheck(lambda x, w, b: conv2d(x, w, b, 2, 1),
+              [rand(2, 3, 6, 7), rand(4, 3, 3, 3, seed=1), rand(4, seed=2)],
+              check_inputs=[1, 2])
+
+
+@pytest.mark.parametrize("channels", [2, 6])         # tap-major and pixel-major cols
+@pytest.mark.parametrize("block_bytes", [8, 2000, 9000])
+def test_conv2d_blocks_give_the_same_result(monkeypatch, block_bytes, channels):
+    """im2col runs in cache-sized blocks (rows of an image, or whole images); any
+    block size must give the same values and gradients."""
+    x, w, b = rand(3, channels, 9, 11), rand(3, channels, 3, 3, seed=1), rand(3, seed=2)
+    g = rand(3, 3, 5, 6, seed=3)
+
+    def run():
+        xt, wt, bt = (Tensor(a, requires_grad=True) for a in (x, w, b))
+        y = conv2d(xt, wt, bt, stride=2, padding=1)
+        y.backward(g)
+        return y.data, xt.grad, wt.grad, bt.grad
+
+    reference = run()
+    monkeypatch.setattr(conv_module, "_BLOCK_BYTES", block_bytes)
+    for expected, got in zip(reference, run()):
+        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
+    gradcheck(lambda x, w: conv2d(x, w, None, 1, 1), [rand(2, 2, 4, 5), rand(2, 2, 3, 2)])
+
+
+def test_conv2d_chain_with_relu():
+    """Two convolutions in a row: the second reads the first's channels-last output."""
+    def net(x, w1, w2):
+        return conv2d(relu(conv2d(x, w1, None, 1, 1)), w2, None, 2, 0)
+    gradcheck(net, [rand(2, 2, 6, 7), rand(3, 2, 3, 3, seed=1), rand(2, 3, 2, 2, seed=2)])
+
+
+def test_conv2d_float32_in_float32_out():
+    x = Tensor(rand(2, 3, 8, 9).astype(np.float32), requires_grad=True)
+    w = Tensor(rand(4, 3, 3, 3, seed=1).astype(np.float32), requires_grad=True)
+    b = Tensor(np.zeros(4, np.float32), requires_grad=True)
+    y = conv2d(x, w, b, 1, 1)
+    assert y.dtype == np.float32
+    y.sum().backward()
+    assert x.grad.dtype == w.grad.dtype == b.grad.dtype == np.float32
+    expected = naive_conv2d(x.data.astype(np.float64), w.data.astype(np.float64), None,
+                            (1, 1), (1, 1))
+    np.testing.assert_allclose(y.data, expected, rtol=1e-5, atol=1e-5)
+
+
+# -- conv_transpose2d -------------------------------------------------------------------
+# (N, C_in, C_out, H, W, KH, KW, stride, padding, output_padding, bias)
+CONVT_CASES = [
+    (2, 3, 2, 3, 4, 3, 3, 1, 0, 0, True),
+    (1, 2, 3, 3, 4, 3, 3, 2, 1, 1, True),        # the classic x2 upsampling layer
+    (2, 2, 2, 4, 3, 4, 4, 2, 1, 0, False),
+    (1, 2, 2, 3, 3, 3, 2, 3, 0, 2, True),        # stride 3, output_padding 2
+    (1, 3, 2, 4, 5, 2, 3, (2, 1), (1, 0), (1, 0), True),   # pairs
+    (1, 2, 2, 3, 4, 1, 1, 3, 0, 1, True),        # stride larger than the kernel
+    (1, 2, 1, 5, 4, 5, 3, 1, 2, 0, True),        # padding crops the full output
+]
+
+
+@pytest.mark.parametrize("case", CONVT_CASES)
+def test_conv_transpose2d_gradcheck(case):
+    N, C, O, H, W, KH, KW, stride, padding, out_pad, bias = case
+    arrays = [rand(N, C, H, W, seed=1), rand(C, O, KH, KW, seed=2)]
+    if bias:
+        arrays.append(rand(O, seed=3))
+    gradcheck(lambda x, w, *b: conv_transpose2d(x, w, b[0] if b else None, stride,
+                                                padding, out_pad), arrays)
+
+
+@pytest.mark.parametrize("case", CONV_CASES)
+def test_conv_transpose2d_is_the_adjoint_of_conv2d(case):
+    """<conv2d(x, w), y> = <x, conv_transpose2d(y, w)>, with the output_padding that
+    restores x's size (the rows a strided convolution never reads)."""
+    N, C, O, H, W, KH, KW, stride, padding, _ = case
+    pair = lambda v: v if isinstance(v, tuple) else (v, v)  # noqa: E731
+    (sh, sw), (ph, pw) = pair(stride), pair(padding)
+    x, w = rand(N, C, H, W, seed=7), rand(O, C, KH, KW, seed=8)
+    cx = conv2d(x, w, None, stride, padding)
+    y = rand(*cx.shape, seed=9)
+    OH, OW = cx.shape[2:]
+    out_pad = (H + 2 * ph - KH - (OH - 1) * sh, W + 2 * pw - KW - (OW - 1) * sw)
+    ty = conv_transpose2d(y, w, None, stride, padding, out_pad)
+    assert ty.shape == x.shape
+    np.testing.assert_allclose(np.sum(cx.data * y), np.sum(x * ty.data), rtol=1e-10)
+
+
+# -- upsample ----------------------------------------------------------------------------
+@pytest.mark.parametrize("mode", ["nearest", "bilinear"])
+@pytest.mark.parametrize("scale", [2, 3, (2, 3), 1])
+def test_upsample_gradcheck(mode, scale):
+    gradcheck(lambda x: upsample(x, scale, mode), [rand(2, 2, 3, 4)])
+
+
+def test_upsample_nearest_repeats_pixels():
+    x = rand(2, 3, 4, 5)
+    y = upsample(x, 2, "nearest").data
+    np.testing.assert_array_equal(y, x.repeat(2, axis=2).repeat(2, axis=3))
+
+
+def test_upsample_bilinear_values():
+    """align_corners=False: output pixel k reads the input at (k + 1/2)/s - 1/2,
+    clamped to the image. Along one axis of [0, 4] at scale 2 that is
+    t = -1/4, 1/4, 3/4, 5/4 -> 0, 1, 3, 4 (clamped at the left edge, then linear)."""
+    row = np.array([0.0, 4.0]).reshape(1, 1, 1, 2)
+    y = upsample(row, (1, 2), "bilinear").data
+    np.testing.assert_allclose(y[0, 0, 0], [0.0, 1.0, 3.0, 4.0])
+    ramp = np.add.outer(np.arange(5.0), 10 * np.arange(6.0))[None, None]  # linear
+    y = upsample(ramp, 3, "bilinear").data[0, 0]
+    t_row, t_col = (np.arange(15) + 0.5) / 3 - 0.5, (np.arange(18) + 0.5) / 3 - 0.5
+    expected = np.add.outer(np.clip(t_row, 0, 4), 10 * np.clip(t_col, 0, 5))
+    np.testing.assert_allclose(y, expected, atol=1e-12)
+
+
+# -- pooling -----------------------------------------------------------------------------
+POOL_CASES = [(3, 1, 1), (2, None, 0), (3, 2, 1), ((3, 2), (1, 2), (1, 0)), (2, 1, 0)]
+
+
+@pytest.mark.parametrize("kernel, stride, padding", POOL_CASES)
+def test_avg_pool2d_gradcheck(kernel, stride, padding):
+    gradcheck(lambda x: avg_pool2d(x, kernel, stride, padding), [rand(2, 2, 5, 6)])
+
+
+@pytest.mark.parametrize("kernel, stride, padding", POOL_CASES)
+def test_max_pool2d_gradcheck(kernel, stride, padding):
+    gradcheck(lambda x: max_pool2d(x, kernel, stride, padding), [rand(2, 2, 5, 6)])
+
+
+def test_avg_pool2d_is_a_convolution_with_a_box_kernel():
+    """count_include_pad=True: the padded zeros count, so it equals conv2d with
+    weights 1/(KH KW) applied to each channel."""
+    x = rand(2, 3, 7, 8)
+    box = np.zeros((3, 3, 3, 3))
+    for c in range(3):
+        box[c, c] = 1 / 9
+    np.testing.assert_allclose(avg_pool2d(x, 3, 1, 1).data, conv2d(x, box, None, 1, 1).data,
+                               atol=1e-14)
+
+
+def test_max_pool2d_values():
+    x = np.arange(16.0).reshape(1, 1, 4, 4)
+    np.testing.assert_array_equal(max_pool2d(x, 2).data[0, 0], [[5, 7], [13, 15]])
+
+
+# -- bad inputs --------------------------------------------------------------------------
+X, WEIGHT = rand(2, 3, 8, 8), rand(4, 3, 3, 3)
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (lambda: conv2d(rand(3, 8, 8), WEIGHT), ValueError, "x must be a 4-D NCHW"),
+    (lambda: conv2d(X, rand(4, 3, 3)), ValueError, "weight must be 4-D"),
+    (lambda: conv2d(X, rand(4, 2, 3, 3)), ValueError, "x has 3 channels but weight"),
+    (lambda: conv2d(X, WEIGHT, rand(3)), ValueError, "bias must have shape"),
+    (lambda: conv2d(X, WEIGHT, stride=0), ValueError, "stride must be a positive"),
+    (lambda: conv2d(X, WEIGHT, stride=-1), ValueError, "stride must be a positive"),
+    (lambda: conv2d(X, WEIGHT, stride=(1, 2, 3)), ValueError, "stride"),
+    (lambda: conv2d(X, WEIGHT, stride=1.5), ValueError, "stride"),
+    (lambda: conv2d(X, WEIGHT, padding=-1), ValueError, "padding must be a non-negative"),
+    (lambda: conv2d(rand(1, 3, 2, 2), WEIGHT), ValueError, "kernel 3x3 is larger"),
+    (lambda: conv2d(X.astype(np.int64), WEIGHT), TypeError, "x must hold float"),
+    (lambda: conv2d(X, WEIGHT.astype(np.int32)), TypeError, "weight must hold float"),
+    (lambda: conv2d(X, WEIGHT.astype(np.float32)), TypeError, "mix dtypes"),
+    (lambda: conv2d(X, WEIGHT, rand(4).astype(np.float32)), TypeError, "bias is float32"),
+    (lambda: conv_transpose2d(X, rand(3, 2, 3, 3), stride=2, output_padding=2),
+     ValueError, "output_padding must be smaller than stride"),
+    (lambda: conv_transpose2d(X, rand(4, 2, 3, 3)), ValueError, "x has 3 channels"),
+    (lambda: conv_transpose2d(X, rand(3, 2, 3, 3), rand(3)), ValueError,
+     r"bias must have shape \(C_out,\) = \(2,\)"),
+    (lambda: conv_transpose2d(rand(1, 3, 1, 1), rand(3, 2, 3, 3), padding=2),
+     ValueError, "padding .* leaves no output"),
+    (lambda: upsample(X, 2, "bicubic"), ValueError, "mode must be"),
+    (lambda: upsample(X, 0), ValueError, "scale_factor must be a positive"),
+    (lambda: upsample(X, 1.5), ValueError, "scale_factor"),
+    (lambda: upsample(rand(8, 8), 2), ValueError, "x must be a 4-D NCHW"),
+    (lambda: avg_pool2d(X, 3, 1, 2), ValueError, "padding must be at most half"),
+    (lambda: avg_pool2d(X, 0), ValueError, "kernel_size must be a positive"),
+    (lambda: avg_pool2d(X, 9), ValueError, "kernel 9x9 is larger"),
+    (lambda: max_pool2d(X, 2, stride=0), ValueError, "stride must be a positive"),
+    (lambda: avg_pool2d(X.astype(np.int32), 3), TypeError, "x must hold float"),
+])
+def test_bad_inputs_raise_clear_errors(call, error, match):
+    with pytest.raises(error, match=match):
+        call()

@@ -1,0 +1,376 @@
+"""The classroom checkers: each passes the reference solution, and fails with a helpful
+message on the unmodified template (where the exercise asks for a change) and on
+deliberately broken solutions. Plus the adapters that carry a change into training."""
+import argparse
+import json
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from minid3rqn.classroom import EXERCISES, find
+from minid3rqn.classroom import adapters, checks
+from minid3rqn.classroom.commands import run_check
+
+pytestmark = pytest.mark.classroom
+
+ROOT = Path(__file__).resolve().parents[1]
+TEMPLATES = ROOT / "exercises"
+SOLUTIONS = ROOT / "docs" / "solutions"
+NEEDS_CHANGE = {"reward", "actions", "fov", "ablation", "op", "depth-loss"}
+
+
+def write(tmp_path, name, code):
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(code))
+    return path
+
+
+def failed_with(report, *phrases):
+    assert not report.passed, report.text()
+    text = report.messages
+    for phrase in phrases:
+        assert phrase in text, f"{phrase!r} not in:\n{report.text()}"
+
+
+# -- every exercise: files exist, solution passes, template fails where a change is asked --
+def test_registry_files_exist():
+    assert len(EXERCISES) == 7
+    for ex in EXERCISES.values():
+        assert (TEMPLATES / ex.filename).is_file(), ex.filename
+        assert (SOLUTIONS / ex.filename).is_file(), ex.filename
+        assert (ROOT / ex.doc).is_file(), ex.doc
+    assert find("1").name == "reward" and find("depth_loss").name == "depth-loss"
+    with pytest.raises(ValueError, match="choose one of"):
+        find("nope")
+
+
+@pytest.mark.parametrize("name", sorted(EXERCISES))
+def test_solution_passes(name):
+    ex = EXERCISES[name]
+    report = ex.checker(SOLUTIONS / ex.filename)
+    assert report.passed, report.text()
+
+
+@pytest.mark.parametrize("name", sorted(EXERCISES))
+def test_template(name):
+    ex = EXERCISES[name]
+    report = ex.checker(TEMPLATES / ex.filename)
+    if name in NEEDS_CHANGE:
+        assert not report.passed, report.text()
+        assert "Hint:" in report.messages
+    else:
+        assert report.passed, report.text()
+
+
+def test_missing_file_and_syntax_error(tmp_path):
+    failed_with(checks.check_reward(tmp_path / "nothing.py"), "file not found")
+    bad = write(tmp_path, "reward.py", "def reward(d, c)\n    return d\n")
+    failed_with(checks.check_reward(bad), "Python cannot read", "line 1")
+
+
+# -- 1. reward -------------------------------------------------------------------------
+def test_reward_template_message():
+    failed_with(checks.check_reward(TEMPLATES / "reward.py"), "still the paper's")
+
+
+def test_reward_scalar_if_is_caught(tmp_path):
+    path = write(tmp_path, "reward.py", """
+        def reward(d_nearest, collided, yaw_rate=0.0):
+            if collided:
+                return -1.0
+            return min(d_nearest, 3.0)
+        """)
+    failed_with(checks.check_reward(path), "arrays", "np.where")
+
+
+def test_reward_forgot_return(tmp_path):
+    path = write(tmp_path, "reward.py", """
+        def reward(d_nearest, collided, yaw_rate=0.0):
+            d_nearest * 2
+        """)
+    failed_with(checks.check_reward(path), "returned None", "return")
+
+
+def test_reward_collision_not_worst(tmp_path):
+    path = write(tmp_path, "reward.py", """
+        import numpy as np
+        def reward(d_nearest, collided, yaw_rate=0.0):
+            return np.where(collided, 0.0, np.asarray(d_nearest) - 2.0 * np.abs(yaw_rate))
+        """)
+    failed_with(checks.check_reward(path), "collision must be worse")
+
+
+def test_reward_needs_default_yaw_rate(tmp_path):
+    path = write(tmp_path, "reward.py", """
+        import numpy as np
+        def reward(d_nearest, collided, yaw_rate):
+            return np.where(collided, -1.0, np.asarray(d_nearest) - np.abs(yaw_rate))
+        """)
+    failed_with(checks.check_reward(path), "yaw_rate=0.0")
+
+
+def test_reward_that_pays_for_turning(tmp_path):
+    path = write(tmp_path, "reward.py", """
+        import numpy as np
+        def reward(d_nearest, collided, yaw_rate=0.0):
+            return np.where(collided, -1.0, np.minimum(d_nearest, 3.0) + np.abs(yaw_rate))
+        """)
+    failed_with(checks.check_reward(path), "does not penalise turning")
+
+
+def test_reward_two_argument_clip_passes(tmp_path):
+    path = write(tmp_path, "reward.py", """
+        import numpy as np
+        def reward(d_nearest, collided):
+            return np.where(collided, -1.0, np.minimum(d_nearest, 3.0))
+        """)
+    report = checks.check_reward(path)
+    assert report.passed, report.text()
+    assert report.summary["sees_yaw_rate"] is False
+
+
+# -- 2. actions ------------------------------------------------------------------------
+@pytest.mark.parametrize("table, phrase", [
+    ("[[2.0, 0.0], [0.0, 0.0], [2.0, 0.5]]", "must be > 0"),
+    ("[[2.0, 0.0], [2.0, 0.5], [2.0, 0.5]]", "identical"),
+    ("[2.0, 0.0, 0.5]", "rows of two numbers"),
+    ("[[2.0, 0.0]]", "at least 2 rows"),
+])
+def test_actions_broken(tmp_path, table, phrase):
+    failed_with(checks.check_actions(write(tmp_path, "actions.py", f"ACTIONS = {table}\n")), phrase)
+
+
+def test_actions_second_speed_reaches_env_and_head(tmp_path):
+    path = write(tmp_path, "actions.py", "ACTIONS = [[2.0, 0.0], [2.0, 0.5], [2.0, -0.5], "
+                                         "[1.0, 0.0]]\n")
+    report = checks.check_actions(path)
+    assert report.passed, report.text()
+    assert "head has 4 outputs" in report.messages
+    failed_with(checks.check_actions(TEMPLATES / "actions.py"), "still the paper's Table 3")
+
+
+# -- 3. field of view ------------------------------------------------------------------
+@pytest.mark.parametrize("value, phrase", [("200", "between 0 and 180"),
+                                           ("'60'", "must be a number")])
+def test_fov_broken(tmp_path, value, phrase):
+    failed_with(checks.check_fov(write(tmp_path, "camera.py", f"HFOV_DEG = {value}\n")), phrase)
+
+
+def test_fov_template_message():
+    failed_with(checks.check_fov(TEMPLATES / "camera.py"), "still 90 degrees")
+
+
+# -- 4. memory -------------------------------------------------------------------------
+@pytest.mark.parametrize("value, phrase", [("0", "from 1 to 50"), ("'5'", "whole number"),
+                                           ("2.5", "whole number"), ("True", "whole number")])
+def test_memory_broken(tmp_path, value, phrase):
+    failed_with(checks.check_memory(write(tmp_path, "memory.py", f"SEQ_LEN = {value}\n")), phrase)
+
+
+@pytest.mark.parametrize("L", [1, 10])
+def test_memory_lengths(tmp_path, L):
+    report = checks.check_memory(write(tmp_path, "memory.py", f"SEQ_LEN = {L}\n"))
+    assert report.passed and f"windows of {L} step" in report.messages
+
+
+# -- 5. ablations ----------------------------------------------------------------------
+def test_ablation_template_message():
+    failed_with(checks.check_ablation(TEMPLATES / "ablation.py"), "nothing is removed")
+
+
+def test_ablation_no_dueling_passes(tmp_path):
+    code = (TEMPLATES / "ablation.py").read_text().replace("DUELING = True", "DUELING = False")
+    report = checks.check_ablation(write(tmp_path, "ablation.py", code))
+    assert report.passed, report.text()
+    assert report.summary["variant"] == "ddrqn"
+
+
+def test_ablation_forgets_terminals(tmp_path):
+    path = write(tmp_path, "ablation.py", """
+        import numpy as np
+        DUELING = True
+        def td_target(q_online_next, q_target_next, rewards, terminals, gamma):
+            return rewards + gamma * q_target_next.max(axis=-1)
+        """)
+    failed_with(checks.check_ablation(path), "reward alone", "(1 - terminals)")
+
+
+def test_ablation_forgets_reduction(tmp_path):
+    path = write(tmp_path, "ablation.py", """
+        DUELING = True
+        def td_target(q_online_next, q_target_next, rewards, terminals, gamma):
+            return rewards[..., None] + gamma * q_target_next
+        """)
+    failed_with(checks.check_ablation(path), "one target per step")
+
+
+# -- 6. autograd op --------------------------------------------------------------------
+def test_op_template_message():
+    failed_with(checks.check_op(TEMPLATES / "my_op.py"), "not written yet")
+
+
+OP_HEADER = """
+    import numpy as np
+    from minid3rqn import autograd as ag
+    from minid3rqn.autograd import Tensor, as_tensor
+    """
+
+
+def test_op_wrong_backward(tmp_path):
+    path = write(tmp_path, "my_op.py", OP_HEADER + """
+    def leaky_relu(x, slope=0.01):
+        x = as_tensor(x)
+        y = np.where(x.data > 0, x.data, slope * x.data).astype(x.dtype)
+        return Tensor.from_op(y, (x,), lambda g: (g,), "leaky_relu")
+    """)
+    failed_with(checks.check_op(path), "dy/dx is wrong")
+
+
+def test_op_wrong_forward(tmp_path):
+    path = write(tmp_path, "my_op.py", OP_HEADER + """
+    def leaky_relu(x, slope=0.01):
+        x = as_tensor(x)
+        y = np.maximum(x.data, 0)
+        return Tensor.from_op(y, (x,), lambda g: (g * (x.data > 0),), "leaky_relu")
+    """)
+    failed_with(checks.check_op(path), "forward is wrong")
+
+
+def test_op_composed_from_other_ops(tmp_path):
+    path = write(tmp_path, "my_op.py", OP_HEADER + """
+    def leaky_relu(x, slope=0.01):
+        x = as_tensor(x)
+        return ag.maximum(x, x * slope)
+    """)
+    failed_with(checks.check_op(path), "built from other Tensor ops")
+
+
+def test_op_gradcheck_catches_a_subtle_error(tmp_path):
+    # right at the test points used by the direct check, wrong in general (uses y, not x)
+    path = write(tmp_path, "my_op.py", OP_HEADER + """
+    def leaky_relu(x, slope=0.01):
+        x = as_tensor(x)
+        scale = np.where(x.data > 0, 1.0, slope).astype(x.dtype)
+        y = x.data * scale
+        def vjp(g):
+            return (g * scale if g.shape != (3, 5) else g * scale * (1 + 0.01 * y),)
+        return Tensor.from_op(y, (x,), vjp, "leaky_relu")
+    """)
+    failed_with(checks.check_op(path), "gradcheck failed")
+
+
+# -- 7. depth loss ---------------------------------------------------------------------
+def test_photometric_template_message():
+    failed_with(checks.check_photometric(TEMPLATES / "photometric.py"), "still plain L1")
+
+
+def test_photometric_mixes_the_batch(tmp_path):
+    path = write(tmp_path, "photometric.py", """
+        from minid3rqn import autograd as ag
+        def photometric_error(pred, target):
+            e = ag.mean(ag.abs(pred - target), axis=1, keepdims=True)
+            return e * 0.5 + ag.mean(e, axis=0, keepdims=True) * 0.5
+        """)
+    failed_with(checks.check_photometric(path), "image 0 changes")
+
+
+def test_photometric_without_gradients(tmp_path):
+    path = write(tmp_path, "photometric.py", """
+        import numpy as np
+        from minid3rqn.autograd import Tensor
+        def photometric_error(pred, target):
+            return Tensor(np.abs(pred.data - target.data).mean(axis=1, keepdims=True) * 1.5)
+        """)
+    failed_with(checks.check_photometric(path), "gradients into the warped image")
+
+
+def test_photometric_other_alpha(tmp_path):
+    code = (SOLUTIONS / "photometric.py").read_text().replace("ALPHA = 0.85", "ALPHA = 0.5")
+    report = checks.check_photometric(write(tmp_path, "photometric.py", code))
+    assert report.passed and abs(report.summary["alpha"] - 0.5) < 1e-6
+
+
+# -- adapters: the change reaches training ---------------------------------------------
+def test_classroom_flights_pays_the_students_reward():
+    from minid3rqn.rl.flights import FlightsConfig
+    seen = {}
+
+    def reward(d, collided, yaw_rate=0.0):
+        seen["yaw"] = np.asarray(yaw_rate).copy()
+        return np.where(collided, -1.0, 7.0 - np.abs(yaw_rate))
+
+    from minid3rqn.classroom.flights import ClassroomFlights
+    fl = ClassroomFlights("basic", 3, seed=0, reward_fn=reward,
+                                   config=FlightsConfig(n_worlds=2))
+    fl.reset()
+    res = fl.step(np.array([0, 3, 4]))
+    np.testing.assert_allclose(seen["yaw"], [0.0, 0.5, -0.5])
+    want = np.where(res.terminated, -1.0, 7.0 - np.array([0.0, 0.5, 0.5]))
+    np.testing.assert_allclose(res.rewards, want)
+
+
+def test_patches_are_scoped():
+    import importlib
+    # import_module, not `import a.b.c as x`: rl/__init__ re-exports a function `train`
+    dl, agent, ev, tr = (importlib.import_module(f"minid3rqn.{m}") for m in
+                         ("depth.losses", "rl.agent", "rl.evaluate", "rl.train"))
+    before = (tr.Flights, ev.Flights, agent.double_q_targets, dl.photometric_error)
+    from minid3rqn.rl.flights import FlightsConfig
+    with adapters.classroom_flights(actions=[[2.0, 0.0], [2.0, 0.9]]) as make:
+        assert tr.Flights is make and ev.Flights is make
+        fl = tr.Flights("basic", 1, seed=0, config=FlightsConfig(n_worlds=1))
+        assert fl.n_actions == 2
+    with adapters.td_target(lambda qo, qt, r, t, g: r):
+        y = agent.double_q_targets(np.zeros((1, 2, 3)), np.ones((1, 2, 3)), np.ones((1, 2)),
+                                   np.zeros((1, 2)), 0.9)
+        assert y.dtype == np.float32 and np.all(y == 1)
+    with adapters.photometric_error(lambda p, t: "mine"):
+        assert dl.photometric_error(1, 2, 0.85) == "mine"
+    assert before == (tr.Flights, ev.Flights, agent.double_q_targets, dl.photometric_error)
+
+
+# -- the runner and the CLI hooks ------------------------------------------------------
+def test_run_agent_exercise_smoke(tmp_path):
+    from minid3rqn.classroom.runner import run_exercise
+    from minid3rqn.io import load_npz
+    res = run_exercise("actions", file=SOLUTIONS / "actions.py", budget="smoke", out=tmp_path,
+                       progress=False)
+    assert len(res["actions"]) == 7 and len(res["action_share"]) == 7
+    _, meta = load_npz(tmp_path / "actions" / res["tag"] / "model.npz")
+    assert meta["qnet_config"]["n_actions"] == 7
+    saved = json.loads((tmp_path / "actions" / res["tag"] / "result.json").read_text())
+    assert 0.0 <= saved["success"] <= 1.0
+
+
+def test_run_depth_exercise_smoke(tmp_path):
+    from minid3rqn.classroom.runner import run_exercise
+    res = run_exercise("depth-loss", file=SOLUTIONS / "photometric.py", budget="smoke",
+                       out=tmp_path, progress=False)
+    assert np.isfinite(res["abs_rel"])
+    assert (tmp_path / "depth-loss" / res["tag"] / "pictures.png").is_file()
+
+
+def test_run_exercise_refuses_a_failing_file(tmp_path):
+    from minid3rqn.classroom.runner import run_exercise
+    with pytest.raises(SystemExit, match="fix the problems"):
+        run_exercise("reward", file=TEMPLATES / "reward.py", budget="smoke", out=tmp_path,
+                     progress=False)
+
+
+def test_check_command(capsys):
+    ns = argparse.Namespace
+    assert run_check(ns(exercise="reward", file=str(TEMPLATES / "reward.py"), solutions=False)) == 1
+    assert "NOT YET" in capsys.readouterr().out
+    assert run_check(ns(exercise="all", file=None, solutions=True)) == 0
+    assert "7/7 exercises pass" in capsys.readouterr().out
+
+
+def test_warp_picture_tells_the_truth(tmp_path):
+    from minid3rqn.classroom.pictures import make_warp_picture, warp_rows
+    rows = warp_rows(seed=0, height=32, width=104)
+    err = {name: float(np.mean(e[valid])) for name, _, _, e, valid in rows}
+    true, none, wrong = err["true depth, true motion"], err["no warp"], err["depth x 0.5"]
+    assert true < 0.5 * none and true < wrong, err
+    assert make_warp_picture(tmp_path / "warp.png").is_file()

@@ -1,0 +1,255 @@
+"""Unsupervised depth: geometry, the view-synthesis loss, data, training, evaluation."""
+import json
+
+import numpy as np
+import pytest
+
+from minid3rqn import autograd as ag
+from minid3rqn.autograd import Tensor
+from minid3rqn.depth.data import Sequence, collect, load_sequence, save_sequence, triplet_indices
+from minid3rqn.depth.evaluate import DepthEstimator, depth_metrics, evaluate
+from minid3rqn.depth.geometry import (check_intrinsics, inverse_warp, matrix_to_pose_vec,
+                                      pose_vec_to_mat)
+from minid3rqn.depth.losses import LossConfig, photometric_error, view_synthesis_loss
+from minid3rqn.depth.train import TrainConfig, Trainer
+from minid3rqn.world import Camera, make_scene, render_batch
+from minid3rqn.world.geometry import inverse_warp_numpy, relative_transform
+
+pytestmark = pytest.mark.depth
+
+TINY = Camera(16, 24, 90.0)
+
+
+def _k(h, w, f=None):
+    f = f or w / 2
+    return np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def flight():
+    """Three consecutive frames of one scripted flight in the basic world."""
+    data = collect("basic", n_frames=3, frames_per_flight=3, seed=3, progress=False)
+    return data
+
+
+@pytest.fixture(scope="module")
+def tiny_sequence():
+    data = collect("basic", n_frames=24, frames_per_flight=12, seed=5, camera=TINY,
+                   progress=False)
+    return Sequence(data["rgb"], data["flight"], data["K"], data["depth"], data["pose"])
+
+
+# -- geometry ------------------------------------------------------------------------------
+def test_pose_vec_round_trip_and_rigid():
+    rng = np.random.default_rng(0)
+    vec = rng.normal(scale=0.3, size=(5, 6))
+    T = pose_vec_to_mat(vec).data
+    R = T[:, :3, :3]
+    assert np.allclose(R @ np.swapaxes(R, 1, 2), np.eye(3), atol=1e-12)
+    assert np.allclose(np.linalg.det(R), 1.0)
+    assert np.allclose(T[:, 3], [0, 0, 0, 1])
+    assert np.allclose(matrix_to_pose_vec(T), vec, atol=1e-12)
+
+
+@pytest.mark.parametrize("padding", ["zeros", "border"])
+def test_warp_with_gt_reconstructs_target_and_matches_world(flight, padding):
+    """GT depth of the middle frame + GT relative pose: the autograd warp of each
+    neighbour reproduces the middle frame, and equals the world's NumPy warp."""
+    rgb, depth, pose, K = flight["rgb"], flight["depth"], flight["pose"], flight["K"]
+    tgt = rgb[1].astype(np.float64) / 255
+    for s in (0, 2):
+        T = relative_transform(pose[1], pose[s])
+        src = rgb[s].astype(np.float64) / 255
+        ref, ref_valid = inverse_warp_numpy(src, depth[1], K, T, padding)
+        src_t = Tensor(src.transpose(2, 0, 1)[None].copy(), requires_grad=True)
+        depth_t = Tensor(depth[1][None, None].astype(np.float64), requires_grad=True)
+        T_t = Tensor(T[None].copy(), requires_grad=True)
+        out, valid = inverse_warp(src_t, depth_t, T_t, K, padding)
+        np.testing.assert_allclose(out.data[0].transpose(1, 2, 0), ref, atol=1e-9)
+        np.testing.assert_array_equal(valid[0, 0].astype(bool), ref_valid)
+        v = ref_valid
+        assert v.mean() > 0.5
+        err_warp = np.abs(out.data[0].transpose(1, 2, 0) - tgt)[v].mean()
+        err_identity = np.abs(src - tgt)[v].mean()
+        assert err_warp < 0.03 and err_warp < 0.5 * err_identity
+        # every input is reached by the gradient
+        (out * out).sum().backward()
+        for t in (src_t, depth_t, T_t):
+            assert t.grad is not None and np.isfinite(t.grad).all() and np.abs(t.grad).sum() > 0
+
+
+def test_mismatched_intrinsics_raise():
+    with pytest.raises(ValueError, match="does not match the image size"):
+        check_intrinsics(_k(32, 104), 16, 52)
+    with pytest.raises(ValueError, match="does not match the image size"):
+        inverse_warp(np.zeros((1, 3, 8, 12)), np.ones((1, 8, 12)), np.eye(4)[None],
+                     _k(16, 24))
+
+
+# -- the loss ------------------------------------------------------------------------------
+@pytest.mark.parametrize("cfg", [LossConfig(speed_weight=0.1), LossConfig(ssim_weight=0.0, edge_aware=False,
+                                                          min_reprojection=False,
+                                                          automask=False, padding="zeros")],
+                         ids=["monodepth2-style", "sfmlearner-style"])
+def test_gradcheck_view_synthesis_loss(cfg):
+    rng = np.random.default_rng(1)
+    h, w, n = 4, 8, 1
+    K = _k(h, w)
+    target = rng.random((n, 3, h, w))
+    sources = [rng.random((n, 3, h, w)) for _ in range(2)]
+    disp0 = rng.uniform(0.3, 0.6, (n, 1, h, w))
+    disp1 = rng.uniform(0.3, 0.6, (n, 1, h // 2, w // 2))
+    poses = rng.normal(scale=0.05, size=(n, 2, 6))
+
+    def fn(d0, d1, p):
+        loss, _ = view_synthesis_loss(target, sources, [d0, d1], p, K, cfg)
+        return loss
+
+    assert ag.gradcheck(fn, [disp0, disp1, poses], atol=1e-5, rtol=1e-4)
+
+
+def test_loss_prefers_the_true_depth_and_pose(flight):
+    """With GT pose, GT depth beats a constant depth, infinite depth and no motion."""
+    from minid3rqn.depth.losses import downsample_image
+    rgb, depth, pose, K = flight["rgb"], flight["depth"], flight["pose"], flight["K"]
+    f = lambda i: rgb[i].transpose(2, 0, 1)[None].astype(np.float32) / 255
+    target, sources = f(1), [f(0), f(2)]
+    vec = np.stack([matrix_to_pose_vec(relative_transform(pose[1], pose[s]))
+                    for s in (0, 2)])[None].astype(np.float32)
+
+    def loss(d, p):
+        d = d[None, None].astype(np.float32)
+        disps = [Tensor(1 / downsample_image(d, 2 ** i)) for i in range(4)]
+        return float(view_synthesis_loss(target, sources, disps, Tensor(p), K)[0].data)
+
+    best = loss(depth[1], vec)
+    for d, p in [(np.full_like(depth[1], 4.0), vec), (np.full_like(depth[1], 90.0), vec),
+                 (depth[1], 0 * vec)]:
+        assert best < 0.8 * loss(d, p)
+
+
+def test_posenet_planar_and_forward_init():
+    from minid3rqn.nets.posenet import PoseNet
+    x = np.random.default_rng(0).random((2, 3, 16, 24)).astype(np.float32)
+    net = PoseNet(dof=3, pose_scale=0.1, head_gain=0.0, init_tz=(0.8, -0.8))
+    out = net(x, [x, x]).data
+    assert out.shape == (2, 2, 6)
+    np.testing.assert_allclose(out[:, :, 2], [[0.8, -0.8]] * 2, rtol=1e-5)
+    assert np.all(out[:, :, [0, 1, 3, 4, 5]] == 0)
+    with pytest.raises(ValueError, match="dof"):
+        PoseNet(dof=4)
+
+
+def test_photometric_error_is_zero_for_equal_images():
+    x = np.random.default_rng(0).random((2, 3, 8, 12)).astype(np.float32)
+    assert np.abs(photometric_error(x, x).data).max() < 1e-5
+
+
+# -- data ------------------------------------------------------------------------------------
+def test_triplets_never_cross_flights(tiny_sequence):
+    seq = tiny_sequence
+    idx = seq.triplet_indices()
+    assert len(idx) == len(seq) - 2 * (seq.flight.max() + 1)
+    for t in idx:
+        assert seq.flight[t - 1] == seq.flight[t] == seq.flight[t + 1]
+    boundary = int(np.flatnonzero(np.diff(seq.flight))[0]) + 1      # first frame of flight 1
+    with pytest.raises(ValueError, match="different flights"):
+        seq.triplet(boundary)
+    with pytest.raises(ValueError, match="other flights"):
+        seq.batch(np.array([boundary]))
+    assert triplet_indices([0, 0, 1, 1, 1]).tolist() == [3]
+
+
+def test_bad_sequences_raise(tiny_sequence):
+    seq = tiny_sequence
+    with pytest.raises(ValueError, match="empty"):
+        Sequence(seq.rgb[:0], seq.flight[:0], seq.K)
+    with pytest.raises(ValueError, match="does not match the image size"):
+        Sequence(seq.rgb, seq.flight, _k(32, 104))
+    with pytest.raises(ValueError, match="consecutive"):
+        Sequence(seq.rgb[:3], np.array([0, 1, 0]), seq.K)
+    with pytest.raises(ValueError, match="no triplet"):
+        Trainer(Sequence(seq.rgb[:2], seq.flight[:2], seq.K), _tiny_cfg(1))
+
+
+def test_sequence_file_round_trip(tiny_sequence, tmp_path):
+    seq = tiny_sequence
+    path = save_sequence(tmp_path / "s.npz", {"rgb": seq.rgb, "depth": seq.depth,
+                                              "pose": seq.pose, "flight": seq.flight,
+                                              "K": seq.K}, {"scenario": "basic"})
+    back = load_sequence(path)
+    np.testing.assert_array_equal(back.rgb, seq.rgb)
+    assert back.meta["scenario"] == "basic"
+
+
+# -- training --------------------------------------------------------------------------------
+def _tiny_cfg(iterations, **kw):
+    return TrainConfig(iterations=iterations, batch_size=2, lr=2e-3, seed=0,
+                       encoder=(8, 16), decoder=(8, 8), n_scales=2, checkpoint_every=2,
+                       log_every=1, **kw)
+
+
+def test_training_lowers_the_loss(tiny_sequence):
+    trainer = Trainer(tiny_sequence, _tiny_cfg(12, flip=False))
+    fixed = np.array(tiny_sequence.triplet_indices()[:4])
+    target, sources = tiny_sequence.batch(fixed)
+
+    def loss_now():
+        with ag.no_grad():
+            disps = trainer.disp(target)
+            poses = trainer.pose(target, sources)
+            return float(view_synthesis_loss(target, sources, disps, poses,
+                                             tiny_sequence.K, trainer.cfg.loss)[0].data)
+
+    before = loss_now()
+    trainer.sample_batch = lambda: (target, sources, tiny_sequence.K)   # overfit one batch
+    trainer.run(progress=False)
+    assert loss_now() < 0.9 * before
+
+
+def test_resume_continues_exactly(tiny_sequence, tmp_path):
+    ckpt = tmp_path / "ckpt.npz"
+    Trainer(tiny_sequence, _tiny_cfg(2), checkpoint=ckpt).run(progress=False)
+    resumed = Trainer(tiny_sequence, _tiny_cfg(4), checkpoint=ckpt, resume=True)
+    assert resumed.iteration == 2
+    resumed.run(progress=False)
+    straight = Trainer(tiny_sequence, _tiny_cfg(4))
+    straight.run(progress=False)
+    for a, b in zip(resumed.params, straight.params):
+        np.testing.assert_array_equal(a.data, b.data)
+    assert [r["loss"] for r in resumed.history] == [r["loss"] for r in straight.history]
+    other = _tiny_cfg(4)
+    other.lr = 1e-4
+    with pytest.raises(ValueError, match="lr"):
+        Trainer(tiny_sequence, other, checkpoint=ckpt, resume=True)
+
+
+def test_nan_loss_names_the_iteration(tiny_sequence):
+    trainer = Trainer(tiny_sequence, _tiny_cfg(3))
+    trainer.disp.heads[0].bias.data[:] = np.nan
+    with pytest.raises(FloatingPointError, match="NaN.*iteration 1"):
+        trainer.run(progress=False)
+
+
+# -- evaluation and inference ---------------------------------------------------------------
+def test_metrics_of_a_perfect_and_a_scaled_prediction():
+    gt = np.random.default_rng(0).uniform(1, 10, (3, 8, 12))
+    m = depth_metrics(3.7 * gt, gt)                      # median scaling removes the scale
+    assert m["abs_rel"] < 1e-12 and m["a1"] == 1.0
+    m = depth_metrics(3.7 * gt, gt, median_scaling=False)
+    assert m["abs_rel"] > 1
+
+
+def test_estimator_round_trip_and_shapes(tiny_sequence, tmp_path):
+    trainer = Trainer(tiny_sequence, _tiny_cfg(1))
+    est = DepthEstimator(trainer.disp, 2.5, {"height": 16, "width": 24})
+    path = est.save(tmp_path / "m.npz", {"seed": 0})
+    back = DepthEstimator.load(path)
+    rgb = tiny_sequence.rgb[:3]
+    depth = back.predict(rgb)
+    assert depth.shape == (3, 16, 24) and depth.dtype == np.float32
+    np.testing.assert_allclose(depth, est.predict(rgb), rtol=1e-6)
+    with pytest.raises(ValueError, match="trained on 16x24"):
+        back.predict(np.zeros((1, 32, 104, 3), np.uint8))
+    r = evaluate(back, tiny_sequence, posenet=trainer.pose)
+    assert 0 <= r["a1"] <= 1 and r["rot_err_deg"] >= 0

@@ -1,0 +1,45 @@
+"""The depth commands (collect, train-depth, eval-depth) and the example, in smoke mode."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from minid3rqn.depth import commands
+
+pytestmark = pytest.mark.depth
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _run(argv):
+    return commands.main(argv)
+
+
+def test_collect_train_eval_smoke(tmp_path, capsys):
+    data = tmp_path / "train.npz"
+    assert _run(["collect", "--frames", "20", "--frames-per-flight", "10", "--out",
+                 str(data)]) == 0
+    run = tmp_path / "run"
+    assert _run(["train-depth", "--smoke", "--quiet", "--dir", str(run)]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert {"abs_rel", "a1", "rot_err_deg"} <= set(out)
+    assert (run / "model.npz").is_file() and (run / "pictures.png").is_file()
+    meta = json.loads((run / "results.json").read_text())
+    assert meta["seed"] == 0 and meta["command"].startswith("python -m minid3rqn train-depth")
+    assert "--seed 0" in meta["command"] and "--smoke" in meta["command"]
+    # resume: a finished run resumes at its last iteration and does no more work
+    assert _run(["train-depth", "--smoke", "--quiet", "--resume", "--dir", str(run)]) == 0
+    assert "resuming at iteration 3" in capsys.readouterr().out
+    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
+                 str(run / "test.npz"), "--json", str(tmp_path / "m.json")]) == 0
+    assert 0 <= json.loads((tmp_path / "m.json").read_text())["a1"] <= 1
+
+
+def test_example_smoke(tmp_path):
+    out = subprocess.run([sys.executable, str(ROOT / "examples" / "03_train_depth.py"),
+                          "--smoke", "--out", str(tmp_path)], capture_output=True, text=True,
+                         cwd=ROOT, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert (tmp_path / "emerging.png").is_file()

@@ -1,0 +1,446 @@
+"""Tests of the 2.5D world: camera, scenes, renderer, geometry, environment, policies.
+
+Run: OMP_NUM_THREADS=1 python -m pytest tests/test_world.py -q
+"""
+import numpy as np
+import pymunk
+import pytest
+
+from minid3rqn.world import (ACTIONS, SCENARIOS, Camera, DroneEnv, SceneBatch, VecDroneEnv,
+                             depth_to_rgb, inverse_warp_numpy, make_scene, nearest_distance,
+                             nearest_distance_batch, oracle_action, oracle_policy, paper_reward,
+                             pose_to_camera_transform, pymunk_nearest_distance, random_policy,
+                             relative_transform, render, render_batch, sample_start_pose,
+                             straight_policy, topdown)
+from minid3rqn.world.geometry import backproject, bilinear_sample_numpy
+from minid3rqn.world.kinematics import integrate_arc, substep_poses
+from minid3rqn.world.renderer import cast_columns
+
+pytestmark = pytest.mark.world
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    return {name: make_scene(name, 3) for name in SCENARIOS}
+
+
+def start_poses(scene, n, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.stack([sample_start_pose(scene, rng) for _ in range(n)])
+
+
+# ----------------------------------------------------------------------------- camera
+
+def test_camera_intrinsics():
+    cam = Camera()
+    assert cam.K.dtype == np.float64 and cam.K.shape == (3, 3)
+    assert cam.fx == pytest.approx(52.0)          # (104 / 2) / tan(45 deg)
+    assert (cam.cx, cam.cy) == (51.5, 15.5)
+    np.testing.assert_allclose(cam.K @ cam.K_inv, np.eye(3), atol=1e-12)
+    # The outer edges of the first and last columns span the horizontal field of view.
+    edge = (cam.width - 0.5 - cam.cx) / cam.fx
+    assert np.degrees(2 * np.arctan(edge)) == pytest.approx(90.0)
+    assert Camera(64, 208).fx == pytest.approx(2 * cam.fx)
+
+
+@pytest.mark.parametrize("kwargs, error", [
+    (dict(hfov_deg=0), ValueError), (dict(hfov_deg=180), ValueError),
+    (dict(hfov_deg=-10), ValueError), (dict(hfov_deg="wide"), TypeError),
+    (dict(height=0), ValueError), (dict(width=0), ValueError), (dict(width=10.5), TypeError)])
+def test_camera_rejects_bad_configs(kwargs, error):
+    with pytest.raises(error, match="Camera: (hfov_deg|height|width)"):
+        Camera(**kwargs)
+
+
+# ----------------------------------------------------------------------------- scenes
+
+def test_make_scene_errors():
+    with pytest.raises(ValueError, match="basic.*channel.*intersections.*corners"):
+        make_scene("forest", 0)
+    with pytest.raises(ValueError, match="unknown parameter"):
+        make_scene("basic", 0, n_trees=3)
+    with pytest.raises(TypeError, match="seed"):
+        make_scene("basic", 1.5)
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_scene_determinism(name):
+    a, b, c = make_scene(name, 11), make_scene(name, 11), make_scene(name, 12)
+    for field in ("circle_centres", "wall_a", "poly_verts", "appearances"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert not (a.wall_a.shape == c.wall_a.shape and np.array_equal(a.wall_a, c.wall_a)
+                and np.array_equal(a.circle_centres, c.circle_centres)
+                and np.array_equal(a.poly_verts, c.poly_verts))
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_nearest_distance_matches_pymunk(scenes, name):
+    scene = scenes[name]
+    xy = np.random.default_rng(1).uniform(scene.bounds[:2], scene.bounds[2:], (300, 2))
+    d = nearest_distance(scene, xy)
+    np.testing.assert_allclose(d, pymunk_nearest_distance(scene, xy), atol=1e-9)
+    if len(scene.poly_verts):                               # inside a polygon: negative
+        centre = scene.poly_verts[0].mean(0)
+        assert nearest_distance(scene, centre) < 0
+        assert pymunk_nearest_distance(scene, centre) == pytest.approx(
+            float(nearest_distance(scene, centre)))
+    batch = SceneBatch([scenes["basic"], scene])
+    both = nearest_distance_batch(batch, np.stack([xy[:50], xy[50:100]]))
+    np.testing.assert_allclose(both[1], d[50:100], atol=1e-12)
+    np.testing.assert_allclose(both[0], nearest_distance(scenes["basic"], xy[:50]), atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- renderer
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_depth_equals_pymunk_ray_hits(scenes, name):
+    """Column depth = pymunk segment_query hit distance along the same ray, as pinhole
+    depth (the ray r = f + x_n g has forward component 1, so depth = alpha * length)."""
+    scene, cam = scenes[name], Camera()
+    poses = start_poses(scene, 6)
+    xn = cam.column_rays()
+    _, depth = render_batch(scene, poses, cam)
+    hits = cast_columns(scene.batch(), poses, xn)["t"]
+    reach = 200.0
+    cols = np.random.default_rng(2).integers(0, cam.width, (len(poses), 12))
+    for n, pose in enumerate(poses):
+        f = np.array([np.cos(pose[2]), np.sin(pose[2])])
+        g = np.array([np.sin(pose[2]), -np.cos(pose[2])])
+        for u in cols[n]:
+            end = pose[:2] + reach * (f + xn[u] * g)
+            q = scene.space.segment_query_first(tuple(pose[:2]), tuple(end), 0.0,
+                                                pymunk.ShapeFilter())
+            assert q is not None
+            assert hits[n, u] == pytest.approx(q.alpha * reach, abs=1e-7)
+            # The image's middle rows see the wall (the planes there are far away).
+            assert depth[n, cam.height // 2, u] == pytest.approx(q.alpha * reach, rel=1e-6)
+
+
+def test_depth_of_floor_and_ceiling(scenes):
+    scene, cam = scenes["basic"], Camera(64, 208)
+    pose = start_poses(scene, 1)[0]
+    _, depth = render(scene, pose, cam)
+    t = cast_columns(scene.batch(), pose[None], cam.column_rays())["t"][0]
+    yn = cam.row_rays()
+    plane = np.where(yn > 0, scene.altitude / yn, (scene.ceiling - scene.altitude) / -yn)
+    np.testing.assert_allclose(depth, np.minimum(t[None, :], plane[:, None]), rtol=1e-6)
+    assert np.all(np.isfinite(depth)) and depth.min() > 0
+
+
+def test_backprojected_pixels_lie_on_surfaces(scenes):
+    """Every pixel back-projected with its depth lands on the floor, the ceiling or an
+    obstacle surface: the depth is exactly consistent with K."""
+    scene, cam = scenes["intersections"], Camera()
+    pose = start_poses(scene, 1, seed=4)[0]
+    _, depth = render(scene, pose, cam)
+    pts = backproject(depth, cam.K).reshape(-1, 4 - 1)
+    T = pose_to_camera_transform(pose, scene.altitude)
+    world = pts @ T[:3, :3].T + T[:3, 3]
+    on_plane = (np.abs(world[:, 2]) < 1e-4) | (np.abs(world[:, 2] - scene.ceiling) < 1e-4)
+    on_wall = np.abs(nearest_distance(scene, world[:, :2])) < 1e-4
+    assert np.all(on_plane | on_wall)
+
+
+def test_render_outputs_and_batch_equals_single(scenes):
+    cam = Camera()
+    worlds = [scenes[name] for name in SCENARIOS]
+    poses = np.stack([start_poses(s, 1, seed=5)[0] for s in worlds])
+    rgb, depth = render_batch(worlds, poses, cam)
+    assert rgb.shape == (4, 32, 104, 3) and rgb.dtype == np.uint8
+    assert depth.shape == (4, 32, 104) and depth.dtype == np.float32
+    for n, scene in enumerate(worlds):
+        r1, d1 = render(scene, poses[n], cam)
+        np.testing.assert_array_equal(r1, rgb[n])
+        np.testing.assert_array_equal(d1, depth[n])
+        assert r1.std() > 10                   # textured, not flat
+    # Many poses in one world.
+    r2, d2 = render_batch(worlds[0], np.repeat(poses[:1], 3, 0), cam)
+    np.testing.assert_array_equal(r2[2], rgb[0])
+
+
+def test_render_rejects_bad_input(scenes):
+    with pytest.raises(ValueError, match="pose"):
+        render(scenes["basic"], (1.0, 2.0))
+    with pytest.raises(TypeError, match="camera"):
+        render(scenes["basic"], (1.0, 2.0, 0.0), camera=(32, 104))
+    with pytest.raises(ValueError, match="poses"):
+        render_batch([scenes["basic"], scenes["channel"]], np.zeros((3, 3)))
+
+
+# ----------------------------------------------------------------------------- geometry
+
+def test_transforms():
+    pose_a, pose_b = np.array([1.0, 2.0, 0.3]), np.array([1.5, 2.2, 0.5])
+    T_a = pose_to_camera_transform(pose_a, altitude=1.0)
+    # Camera z (forward) is the heading, camera y (down) is world -z, camera x is right.
+    np.testing.assert_allclose(T_a[:3, 2], [np.cos(0.3), np.sin(0.3), 0.0])
+    np.testing.assert_allclose(T_a[:3, 1], [0.0, 0.0, -1.0])
+    np.testing.assert_allclose(T_a[:3, 0], [np.sin(0.3), -np.cos(0.3), 0.0])
+    np.testing.assert_allclose(T_a[:3, 3], [1.0, 2.0, 1.0])
+    P_w = np.array([4.0, -1.0, 2.5, 1.0])
+    P_a = np.linalg.solve(T_a, P_w)
+    P_b = np.linalg.solve(pose_to_camera_transform(pose_b), P_w)
+    np.testing.assert_allclose(relative_transform(pose_a, pose_b) @ P_a, P_b, atol=1e-12)
+    batch = relative_transform(np.stack([pose_a, pose_b]), np.stack([pose_b, pose_a]))
+    np.testing.assert_allclose(batch[0] @ batch[1], np.eye(4), atol=1e-12)
+
+
+def test_warp_identity_and_bilinear():
+    rng = np.random.default_rng(0)
+    cam = Camera()
+    img = rng.random((32, 104, 3))
+    depth = rng.uniform(1, 10, (32, 104))
+    warped, valid = inverse_warp_numpy(img, depth, cam.K, np.eye(4))
+    assert valid[1:-1, 1:-1].all()          # edge pixels may round to just outside
+    np.testing.assert_allclose(warped[valid], img[valid], atol=1e-9)
+    # Half-pixel shift: bilinear average of neighbours; out of view -> invalid and 0.
+    coords = np.stack(np.meshgrid(np.arange(104) + 0.5, np.arange(32), indexing="xy"), -1)
+    out, ok = bilinear_sample_numpy(img[None], coords[None].astype(float))
+    np.testing.assert_allclose(out[0, :, :-1], 0.5 * (img[:, :-1] + img[:, 1:]), atol=1e-12)
+    assert not ok[0, :, -1].any() and ok[0, :, :-1].all()
+    with pytest.raises(ValueError, match="padding"):
+        inverse_warp_numpy(img, depth, cam.K, np.eye(4), padding="reflect")
+
+
+def test_warp_matches_autograd_bilinear_sample():
+    """The NumPy warp and the autograd sampler share one convention."""
+    sample = pytest.importorskip("minid3rqn.autograd.sample")
+    rng = np.random.default_rng(1)
+    img = rng.random((2, 6, 9, 3))
+    coords = rng.uniform(-1.5, 10, (2, 5, 7, 2))
+    for padding in ("zeros", "border"):
+        ours, ok = bilinear_sample_numpy(img, coords, padding)
+        theirs, valid = sample.bilinear_sample(img.transpose(0, 3, 1, 2), coords, padding)
+        np.testing.assert_allclose(ours, theirs.data.transpose(0, 2, 3, 1), atol=1e-12)
+        np.testing.assert_array_equal(ok, valid[:, 0] > 0)
+
+
+@pytest.mark.parametrize("name", ["basic", "corners"])
+def test_warp_reconstructs_next_frame(scenes, name):
+    """With GT depth and GT relative pose, the next frame warped into the current view
+    reproduces it on pixels seen in both frames."""
+    scene, cam = scenes[name], Camera(64, 208)
+    env_actions = ACTIONS
+    err_warp, err_none = [], []
+    for pose in start_poses(scene, 3, seed=6):
+        nxt = integrate_arc(pose, *env_actions[1], 0.4)
+        rgb_t, depth_t = render(scene, pose, cam)
+        rgb_s, depth_s = render(scene, nxt, cam)
+        T = relative_transform(pose, nxt)
+        warped, valid = inverse_warp_numpy(rgb_s, depth_t, cam.K, T)
+        # Visible in both: the target point's depth in the source agrees with the
+        # source's own depth there (not occluded).
+        z_s = (backproject(depth_t, cam.K) @ T[:3, :3].T + T[:3, 3])[..., 2]
+        d_src, _ = inverse_warp_numpy(depth_s, depth_t, cam.K, T)
+        both = valid & (np.abs(d_src - z_s) < 0.05 * z_s)
+        assert both.mean() > 0.5
+        diff = np.abs(warped - rgb_t.astype(np.float32)).mean(-1)
+        err_warp.append(diff[both].mean())
+        err_none.append(np.abs(rgb_s.astype(float) - rgb_t).mean())
+    assert np.mean(err_warp) < 6.0                      # intensity levels of 255
+    assert np.mean(err_warp) < 0.35 * np.mean(err_none)
+
+
+# ----------------------------------------------------------------------------- kinematics
+
+def test_arcs_compose_and_turn_at_radius():
+    pose = np.array([1.0, -2.0, 0.7])
+    a = integrate_arc(integrate_arc(pose, 2.0, 0.5, 0.15), 2.0, 0.5, 0.25)
+    np.testing.assert_allclose(a, integrate_arc(pose, 2.0, 0.5, 0.4), atol=1e-12)
+    # A full circle at 2 m/s and 0.5 rad/s has radius 4 m and returns to the start.
+    circle = integrate_arc(pose, 2.0, 0.5, np.linspace(0, 4 * np.pi, 50))
+    centre = pose[:2] + 4.0 * np.array([-np.sin(0.7), np.cos(0.7)])
+    np.testing.assert_allclose(np.linalg.norm(circle[:, :2] - centre, axis=1), 4.0, atol=1e-12)
+    np.testing.assert_allclose(circle[-1, :2], pose[:2], atol=1e-12)
+    sub = substep_poses(pose[None], np.array([2.0]), np.array([0.0]), 0.4, 8)
+    np.testing.assert_allclose(np.diff(sub[0, :, 0]), 0.1 * np.cos(0.7), atol=1e-12)
+
+
+def test_paper_reward():
+    assert paper_reward(1.7, False) == 1.7 and paper_reward(0.3, True) == -1.0
+    np.testing.assert_array_equal(paper_reward(np.array([2.0, 0.4]), np.array([False, True])),
+                                  [2.0, -1.0])
+
+
+# ----------------------------------------------------------------------------- environment
+
+def test_env_determinism_and_spaces():
+    runs = []
+    for _ in range(2):
+        env = DroneEnv("channel", seed=4)
+        obs, info = env.reset()
+        assert env.observation_space.contains(obs) and info["depth"].shape == (32, 104)
+        rng = np.random.default_rng(0)
+        trace = [info["pose"]]
+        for _ in range(5):
+            obs, r, term, trunc, info = env.step(env.action_space.sample(rng))
+            trace.append(info["pose"])
+            if term:
+                break
+        runs.append((np.array(trace), obs))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    env = DroneEnv("channel", seed=0)
+    p1 = env.reset(seed=9)[1]["pose"]
+    env.reset()
+    assert np.array_equal(env.reset(seed=9)[1]["pose"], p1)
+    assert env.reset(options={"scene_seed": 5})[1]["scene_seed"] == 5
+
+
+def _facing_wall(env, scene_seed=2):
+    """Reset ``env`` 3 m from a wall of a channel world, flying straight at it."""
+    scene = make_scene("channel", scene_seed)
+    a, b = scene.wall_a[0], scene.wall_b[0]
+    mid = 0.5 * (a + b)
+    normal = np.array([-(b - a)[1], (b - a)[0]]) / np.linalg.norm(b - a)
+    if not scene.in_region(mid + 3.0 * normal):
+        normal = -normal
+    start = mid + 3.0 * normal
+    yaw = np.arctan2(-normal[1], -normal[0])
+    env.reset(options={"scene_seed": scene_seed, "pose": (start[0], start[1], yaw)})
+    return a, b, normal
+
+
+@pytest.mark.parametrize("speed", [2.0, 25.0])
+def test_flying_into_a_wall_terminates_never_passes(speed):
+    """Even at 10 m per step (100 sub-steps) the zero-thickness wall stops the drone."""
+    env = DroneEnv("channel", seed=1, actions=[[speed, 0.0]], observe=False)
+    a, b, normal = _facing_wall(env)
+    for _ in range(10):
+        _, reward, term, trunc, info = env.step(0)
+        side = np.dot(info["pose"][:2] - a, normal)
+        assert side > 0                                   # still on the start side
+        if term:
+            break
+    assert term and not trunc and info["collided"] and reward == -1.0
+    assert 0.4 <= info["d_nearest"] < 0.5
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(0)
+
+
+def test_action_table_and_reward_hooks():
+    env = DroneEnv("basic", seed=0, actions=[[1.0, 0.0], [1.0, 1.0]],
+                   reward_fn=lambda d, collided: 42.0 + collided, max_steps=2, observe=False)
+    assert env.action_space.n == 2
+    _, info0 = env.reset()
+    _, reward, term, trunc, info = env.step(0)
+    assert np.linalg.norm(info["pose"][:2] - info0["pose"][:2]) == pytest.approx(0.4)
+    assert reward in (42.0, 43.0)
+    if not term:
+        _, _, term, trunc, info = env.step(1)
+        assert info["pose"][2] - info0["pose"][2] == pytest.approx(0.4)
+        assert trunc != term
+
+
+@pytest.mark.parametrize("bad", [5, -1, 1.0, "0", None])
+def test_bad_action_raises(bad):
+    env = DroneEnv("basic", seed=0, observe=False)
+    env.reset()
+    with pytest.raises(ValueError, match=r"action must be an int in \[0, 5\)"):
+        env.step(bad)
+
+
+def test_bad_env_configs():
+    with pytest.raises(ValueError, match="scenario must be one of"):
+        DroneEnv("moon")
+    with pytest.raises(ValueError, match="actions must have shape"):
+        DroneEnv(actions=[0.0, 0.25])
+    with pytest.raises(TypeError, match="reward_fn"):
+        DroneEnv(reward_fn=3)
+    with pytest.raises(ValueError, match="max_steps"):
+        DroneEnv(max_steps=0)
+    with pytest.raises(ValueError, match="n_envs"):
+        VecDroneEnv(0)
+    with pytest.raises(ValueError, match="unknown option"):
+        DroneEnv().reset(options={"newworld": True})
+    env = VecDroneEnv(2, observe=False)
+    env.reset()
+    with pytest.raises(ValueError, match="actions must lie in"):
+        env.step(np.array([0, 7]))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.array([0]))
+
+
+def test_vec_env_matches_single_envs():
+    n, seed = 3, 7
+    vec = VecDroneEnv(n, "intersections", seed=seed, autoreset=False)
+    singles = [DroneEnv("intersections", seed=[seed, i]) for i in range(n)]
+    obs, info = vec.reset()
+    for i, env in enumerate(singles):
+        o, inf = env.reset()
+        np.testing.assert_array_equal(obs[i], o)
+        np.testing.assert_allclose(info["pose"][i], inf["pose"])
+    rng = np.random.default_rng(3)
+    for _ in range(6):
+        actions = rng.integers(0, 5, n)
+        obs, reward, term, trunc, info = vec.step(actions)
+        for i, env in enumerate(singles):
+            if env.done:
+                continue
+            o, r, t, tr, inf = env.step(int(actions[i]))
+            np.testing.assert_allclose(info["pose"][i], inf["pose"], atol=1e-12)
+            np.testing.assert_array_equal(obs[i], o)
+            np.testing.assert_array_equal(info["depth"][i], inf["depth"])
+            assert reward[i] == pytest.approx(r) and term[i] == t and trunc[i] == tr
+            assert info["d_nearest"][i] == pytest.approx(inf["d_nearest"], abs=1e-9)
+
+
+def test_vec_env_autoreset():
+    vec = VecDroneEnv(2, "corners", seed=0, actions=[[2.0, 0.0]], max_steps=200)
+    vec.reset()
+    for _ in range(60):
+        obs, reward, term, trunc, info = vec.step(np.zeros(2, np.int64))
+        if info["done"].any():
+            break
+    i = int(np.flatnonzero(info["done"])[0])
+    assert term[i] and reward[i] == -1.0
+    assert info["step"][i] == 0 and not info["collided"][i]       # a fresh episode
+    assert not np.array_equal(info["final_pose"][i], info["pose"][i])
+    assert info["final_obs"].shape == obs.shape
+
+
+# ----------------------------------------------------------------------------- policies, pictures
+
+def test_policies():
+    env = VecDroneEnv(4, "corners", seed=0, observe=False, autoreset=False)
+    env.reset()
+    while env.active.any():
+        _, _, _, _, info = env.step(oracle_policy(env))
+    assert not info["collided"].any()
+    env.reset()
+    while env.active.any():
+        _, _, _, _, info = env.step(straight_policy(env))
+    assert info["collided"].all()
+    acts = random_policy(np.random.default_rng(0))(env)
+    assert acts.shape == (4,) and acts.dtype.kind == "i"
+    a = oracle_action(env.scenes[0], env.poses[0])
+    assert 0 <= a < 5
+
+
+def test_pictures(scenes):
+    img = topdown(scenes["basic"], trajectory=[[3, 3], [5, 4], [7, 7]], pose=(7, 7, 0.5),
+                  camera=Camera(), size=200)
+    assert max(img.size) <= 201 and img.mode == "RGB"
+    rgb = depth_to_rgb(np.array([[0.5, 15.0]]))
+    assert rgb[0, 0, 0] > rgb[0, 0, 2] and rgb[0, 1, 2] > rgb[0, 1, 0]   # red near, blue far
+
+
+def test_pilot_policy_and_calibrate_smoke(tmp_path):
+    from minid3rqn.world import calibrate, pilot_policy, save_gif
+    env = VecDroneEnv(3, "intersections", seed=2, observe=False, autoreset=False)
+    env.reset()
+    pilot = pilot_policy(np.random.default_rng(0))
+    taken = []
+    for _ in range(10):
+        a = pilot(env)
+        assert a.shape == (3,) and np.all((0 <= a) & (a < 5))
+        taken.append(a)
+        env.step(a)
+    assert len(np.unique(np.concatenate(taken))) > 1
+    result = calibrate("corners", n_flights=3, seed=0, policies=("straight",))
+    assert result["corners"]["straight"]["flights"] == 3
+    with pytest.raises(ValueError, match="scenarios"):
+        calibrate("moon", n_flights=2)
+    rgb, depth = render(make_scene("basic", 0), (5.0, 5.0, 0.3))
+    save_gif([rgb, depth_to_rgb(depth)], tmp_path / "a.gif")
+    assert (tmp_path / "a.gif").stat().st_size > 0
