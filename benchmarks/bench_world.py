@@ -4,8 +4,10 @@ Run (numbers in docs/world.md come from this command):
 
     OMP_NUM_THREADS=1 python benchmarks/bench_world.py --seed 0
 
-Each figure is the best of ``--repeats`` timed runs (wall clock, one process, one core),
-which filters out interruptions by other processes on a shared machine.
+Each figure is the median CPU time (``time.thread_time``) of individually timed calls in
+one process on one core: CPU time leaves out the time other processes hold the core, so
+the figures stay comparable on a shared machine (a busy machine still slows them down
+somewhat through shared caches).
 """
 from __future__ import annotations
 
@@ -20,15 +22,20 @@ from minid3rqn.world import (Camera, DroneEnv, VecDroneEnv, make_scene, render, 
 from minid3rqn.world.renderer import cast_columns
 
 
+def clock() -> float:
+    """CPU seconds used by this thread: unlike wall time it does not count the time other
+    processes hold the core, so figures stay comparable on a shared machine."""
+    return time.thread_time()
+
+
 def best_time(fn, n: int, repeats: int) -> float:
-    """Seconds per call: the best of ``repeats`` runs of ``n`` calls."""
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(n):
-            fn()
-        best = min(best, (time.perf_counter() - start) / n)
-    return best
+    """CPU seconds per call: the median over ``n * repeats`` individually timed calls."""
+    times = []
+    for _ in range(n * repeats):
+        start = clock()
+        fn()
+        times.append(clock() - start)
+    return float(np.median(times))
 
 
 def pymunk_depth_row(scene, pose, xn, reach=200.0):
@@ -86,30 +93,38 @@ def main(argv=None):
     rows.append(("render_batch, 100 poses in 1 world, 32x104 (per frame)", 1 / sec_batch1,
                  sec_batch1))
 
-    # Worlds are kept across episodes here (episodes_per_world), so that the figures time
-    # stepping and rendering, not world generation (timed on its own below).
-    keep = 10 ** 9
-    env = DroneEnv(args.scenario, seed=args.seed, episodes_per_world=keep)
-    env.reset()
-    act = np.random.default_rng(args.seed)
-
-    def single_step():
-        if env.step(int(act.integers(5)))[2:4] != (False, False):
+    # Steps, resets excluded (world generation and start sampling are timed below): the
+    # first 8 steps after a reset, a random action each, all flights rendered every step.
+    def time_steps(env, act_fn, episodes):
+        times = []
+        for _ in range(episodes):
             env.reset()
-    sec_single = best_time(single_step, int(200 * k) or 5, reps)
-    rows.append(("DroneEnv.step (pymunk distances + render), 1 flight", 1 / sec_single, sec_single))
+            for _ in range(8):
+                start = clock()
+                env.step(act_fn())
+                times.append(clock() - start)
+                if isinstance(env, DroneEnv) and env.done:
+                    break
+        return float(np.median(times))
 
+    act = np.random.default_rng(args.seed)
+    env = DroneEnv(args.scenario, seed=args.seed)
+    sec_single = time_steps(env, lambda: int(act.integers(5)), int(40 * k) or 3)
+    rows.append(("DroneEnv.step (pymunk distances + render), 1 flight", 1 / sec_single,
+                 sec_single))
     n = args.n_envs
-    vec = VecDroneEnv(n, args.scenario, seed=args.seed, autoreset=True, episodes_per_world=keep)
+    vec = VecDroneEnv(n, args.scenario, seed=args.seed, autoreset=False)
     vec.reset()
-    sec_vec = best_time(lambda: vec.step(act.integers(0, 5, n)), max(2, int(20 * k)), reps)
-    rows.append((f"VecDroneEnv.step, {n} flights (per frame)", n / sec_vec, sec_vec / n))
+    sec_vec = time_steps(vec, lambda: act.integers(0, 5, n), max(1, int(3 * k))) / n
+    rows.append((f"VecDroneEnv.step, {n} flights (per frame)", 1 / sec_vec, sec_vec))
+    sec_start = best_time(lambda: sample_start_pose(scene, rng), int(20 * k) or 3, reps)
+    rows.append(("sample_start_pose (a reset's start pose)", 1 / sec_start, sec_start))
 
     seeds = iter(range(10 ** 6))
     sec_gen = best_time(lambda: make_scene(args.scenario, next(seeds)), int(20 * k) or 3, reps)
     rows.append((f"make_scene({args.scenario!r}) (world generation)", 1 / sec_gen, sec_gen))
 
-    print(f"scenario {args.scenario!r}, seed {args.seed}, best of {reps} runs\n")
+    print(f"scenario {args.scenario!r}, seed {args.seed}, median CPU time per call\n")
     print("| measurement | frames/s | ms per frame |")
     print("|---|---:|---:|")
     for name, fps, sec in rows:
@@ -117,7 +132,7 @@ def main(argv=None):
     print(f"\nrender vs pymunk ray loop: {sec_pm / sec_render:.1f}x faster "
           f"(ray casting alone: {sec_pm / sec_cast:.1f}x; batched ray casting: "
           f"{sec_pm / sec_cast_b:.1f}x; batched render: {sec_pm / sec_batch1:.1f}x)")
-    print(f"batched step vs single steps, per frame: {sec_single / (sec_vec / n):.1f}x faster")
+    print(f"batched step vs single steps, per frame: {sec_single / sec_vec:.1f}x faster")
 
 
 if __name__ == "__main__":

@@ -397,6 +397,11 @@ def test_vec_env_autoreset():
     assert info["step"][i] == 0 and not info["collided"][i]       # a fresh episode
     assert not np.array_equal(info["final_pose"][i], info["pose"][i])
     assert info["final_obs"].shape == obs.shape
+    new_rgb, new_depth = render(vec.scenes[i], info["pose"][i])
+    np.testing.assert_array_equal(obs[i], new_rgb)
+    np.testing.assert_array_equal(info["depth"][i], new_depth)
+    assert info["d_nearest"][i] == pytest.approx(
+        float(nearest_distance(vec.scenes[i], info["pose"][i][:2])))
 
 
 # ----------------------------------------------------------------------------- policies, pictures

@@ -15,3 +15,4 @@ from .lstm import lstm_cell, lstm, lstm_cell_reference
 from .sample import bilinear_sample, pixel_grid
 from .losses import l1_loss, mse_loss, huber_loss
 from .optim import SGD, Adam, clip_grad_norm
+from .conv import conv2d, conv_transpose2d, upsample, avg_pool2d, max_pool2d

@@ -64,11 +64,17 @@ class ReactivePolicy(Policy):
     ``clear_ahead`` metres the drone flies straight; otherwise it turns toward the
     column of greatest depth, with the yaw rate in the action table nearest to
     ``angle / turn_time`` (the rate that would face that direction in ``turn_time`` s).
+
+    The defaults were tuned *up* on ``basic`` (GT depth, 150 flights per setting, test
+    worlds of seed 777, not the seed of the reported tables) over smooth in {15..101},
+    turn_time in {0.4..1.6}, clear_ahead in {4, 6, 8, 10, 100}: from 0.00 (smooth 15,
+    clear_ahead 4) to 0.72 (smooth 91: a window as wide as most of the image, i.e.
+    "turn toward the widest free sector").
     """
     name = "Reactive"
 
     def __init__(self, actions: np.ndarray, hfov_deg: float = 90.0, rows: int = 4,
-                 smooth: int = 15, clear_ahead: float = 4.0, turn_time: float = 0.8):
+                 smooth: int = 91, clear_ahead: float = 10.0, turn_time: float = 0.6):
         self.actions = np.asarray(actions, dtype=np.float64)
         self.hfov = math.radians(hfov_deg)
         self.rows, self.smooth = rows, smooth

@@ -67,7 +67,8 @@ def calibrate(scenarios=SCENARIOS, n_flights: int = 2000, seed: int = 0, policie
     for p in policies:
         if p not in POLICIES:
             raise ValueError(f"calibrate: policies must be among {POLICIES}; got {p!r}")
-    if isinstance(n_flights, bool) or not isinstance(n_flights, (int, np.integer)) or n_flights < 1:
+    if (isinstance(n_flights, bool) or not isinstance(n_flights, (int, np.integer))
+            or n_flights < 1):
         raise ValueError(f"calibrate: n_flights must be an int >= 1; got {n_flights!r}")
     results = {}
     for scenario in scenarios:

@@ -92,8 +92,7 @@ def _check_common(scenario, camera, actions, reward_fn, max_steps, safe_distance
     if not callable(reward_fn):
         raise TypeError(f"{name}: reward_fn must be callable (d_nearest, collided) -> reward; "
                         f"got {type(reward_fn).__name__}")
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"{name}: max_steps must be an int >= 1; got {max_steps!r}")
+    _check_positive_int(max_steps, f"{name}: max_steps")
     if not safe_distance >= 0:
         raise ValueError(f"{name}: safe_distance must be >= 0; got {safe_distance!r}")
     if not dt > 0:
@@ -276,7 +275,8 @@ class VecDroneEnv:
         self.action_space = Discrete(len(self.actions))
         self.observation_space = Box(0, 255, (self.n_envs, self.camera.height,
                                               self.camera.width, 3), np.uint8)
-        self.rngs = [np.random.default_rng([seed, self.first_index + i]) for i in range(self.n_envs)]
+        self.rngs = [np.random.default_rng([seed, self.first_index + i])
+                     for i in range(self.n_envs)]
         self.scenes = [None] * self.n_envs
         self.batch = None
         self.scene_seeds = np.zeros(self.n_envs, np.int64)
@@ -366,16 +366,24 @@ class VecDroneEnv:
         obs, info = self._observe(d, terminated.copy())
         info["done"] = done
         if self.autoreset and done.any():
-            info["final_obs"] = obs
+            # Keep the last frame of the ended flights, start their next episodes and
+            # render only their first frames.
+            idx = np.flatnonzero(done)
             info["final_pose"] = info["pose"].copy()
-            info["final_depth"] = info.get("depth")
-            for i in np.flatnonzero(done):
+            if self.observe:
+                info["final_obs"], info["final_depth"] = obs.copy(), info["depth"].copy()
+            for i in idx:
                 self._reset_one(i, {})
-            d = np.where(done, nearest_distance_batch(self.batch, self.poses[:, None, :2])[:, 0], d)
-            obs, new_info = self._observe(d, np.where(done, False, terminated))
-            for key in ("done", "final_obs", "final_pose", "final_depth"):
-                new_info[key] = info[key]
-            info = new_info
+            d_new = nearest_distance_batch(self.batch, self.poses[:, None, :2])[:, 0]
+            info["pose"][idx] = self.poses[idx]
+            info["d_nearest"] = np.where(done, d_new, d)
+            info["collided"] = np.where(done, False, info["collided"])
+            info["step"][idx] = 0
+            info["scene_seed"][idx] = self.scene_seeds[idx]
+            if self.observe:
+                rgb, depth = render_batch([self.scenes[i] for i in idx], self.poses[idx],
+                                          self.camera)
+                obs[idx], info["depth"][idx] = rgb, depth
         return obs, reward, terminated, truncated, info
 
 

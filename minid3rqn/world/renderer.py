@@ -197,6 +197,7 @@ def _shade_pixels(batch: SceneBatch, poses: np.ndarray, camera: Camera):
     """Body of ``render_batch``: cast the columns, then depth and colour of every pixel."""
     xn, yn = camera.column_rays(), camera.row_rays()
     hit = _cast_columns(batch, poses, xn)
+    rows_n = np.arange(len(poses))[:, None, None]
     world = hit["world"]
     n_tex = len(batch.tex[0])
 
@@ -229,15 +230,19 @@ def _shade_pixels(batch: SceneBatch, poses: np.ndarray, camera: Camera):
     f_col = hit["t"] * l2_col / (camera.fx * np.maximum(hit["cos"], 0.2 * np.sqrt(l2_col)))
     f_row = z_plane * l2_row / (camera.fx * np.maximum(np.abs(yv), 0.2 * np.sqrt(l2_row)))
     q_col = batch.tex_t[:, world * n_tex + hit["app"]]                    # (D, N, W)
-    q_col[D_AMP_B], q_col[D_AMP_N] = fade(np.moveaxis(q_col, 0, -1), f_col)
+    q_col[D_AMP_B], q_col[D_AMP_N] = fade(q_col, f_col)
     q_col[D_C0] = q_col[D_C0] * hit["shade"] + 0.5
     q_col[D_DC] *= hit["shade"]
     q_row = batch.tex_t[:, world[..., None] * n_tex
                         + np.where(yv > 0, FLOOR_ID, CEILING_ID)]          # (D, N, H, 1)
-    q_row[D_AMP_B], q_row[D_AMP_N] = fade(np.moveaxis(q_row, 0, -1), f_row)
+    q_row[D_AMP_B], q_row[D_AMP_N] = fade(q_row, f_row)
     q_row[D_C0] += 0.5
+    # Pixel (v, u) reads column u's constants on a wall, row v's on the floor or ceiling.
     used = D_DC.stop                       # rows after the colours are not needed per pixel
-    q = np.where(wall, q_col[:used, :, None, :], q_row[:used])            # (D', N, H, W)
+    n, h, w = wall.shape
+    table = np.concatenate([q_col[:used], q_row[:used, :, :, 0]], axis=-1)  # (D', N, W + H)
+    source = np.where(wall, np.arange(w), w + np.arange(h)[:, None]) + (w + h) * rows_n
+    q = table.reshape(used, -1).take(source, axis=1)                      # (D', N, H, W)
     p = pattern(tex_s, tex_h, q)
     # colour = shade * gain * 255 (c0 + (c1 - c0) p) lies in [0, 255] for p in [0, 1].
     colour = q[D_C0] + q[D_DC] * p                                        # (3, N, H, W)

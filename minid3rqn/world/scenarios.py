@@ -212,8 +212,11 @@ def _polyomino_outline(cells):
     cells = set(cells)
     edges = {}
     for (i, j) in cells:          # cell (i, j) spans [i, i+1] x [j, j+1]; CCW edges
-        for a, b, nb in (((i, j), (i + 1, j), (i, j - 1)), ((i + 1, j), (i + 1, j + 1), (i + 1, j)),
-                         ((i + 1, j + 1), (i, j + 1), (i, j + 1)), ((i, j + 1), (i, j), (i - 1, j))):
+        sides = (((i, j), (i + 1, j), (i, j - 1)),              # (start, end, neighbour)
+                 ((i + 1, j), (i + 1, j + 1), (i + 1, j)),
+                 ((i + 1, j + 1), (i, j + 1), (i, j + 1)),
+                 ((i, j + 1), (i, j), (i - 1, j)))
+        for a, b, nb in sides:
             if nb not in cells:
                 if a in edges:
                     return None
@@ -227,7 +230,8 @@ def _polyomino_outline(cells):
         return None                                   # a hole: more than one loop
     pts = np.array(loop, float)
     prev, nxt = np.roll(pts, 1, axis=0), np.roll(pts, -1, axis=0)
-    turn = (pts[:, 0] - prev[:, 0]) * (nxt[:, 1] - pts[:, 1]) - (pts[:, 1] - prev[:, 1]) * (nxt[:, 0] - pts[:, 0])
+    d_in, d_out = pts - prev, nxt - pts
+    turn = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
     return pts[turn != 0]
 
 

@@ -102,14 +102,16 @@ def _smooth_noise_image(factor: int = 8) -> np.ndarray:
     w = (t * t * (3 - 2 * t))[None, :, None]
 
     def upsample_rows(a):                  # row i f + k = (1 - w_k) a[i] + w_k a[i + 1]
-        return ((1 - w) * a[:, None, :] + w * np.roll(a, -1, axis=0)[:, None, :]).reshape(-1, a.shape[1])
+        rows = (1 - w) * a[:, None, :] + w * np.roll(a, -1, axis=0)[:, None, :]
+        return rows.reshape(-1, a.shape[1])
 
-    return upsample_rows(upsample_rows(LATTICE).T).T.astype(np.float32)
+    return np.ascontiguousarray(upsample_rows(upsample_rows(LATTICE).T).T, dtype=np.float32)
 
 
 NOISE_FACTOR = 8                       # noise texels per lattice cell
 NOISE = _smooth_noise_image(NOISE_FACTOR)
 NOISE_BITS = LATTICE_BITS + 3          # NOISE is 2**NOISE_BITS square
+_LATTICE_FLAT, _NOISE_FLAT = LATTICE.reshape(-1), NOISE.reshape(-1)   # views, not copies
 
 # Derived per-appearance constants, the form the renderer reads (see ``derived_table``).
 (D_INV_SU, D_INV_SV, D_STAGGER, D_OX, D_OY, D_INV_NS, D_NOX, D_NOY, D_LB, D_LN) = range(10)
@@ -133,8 +135,10 @@ def derived_table(apps: np.ndarray) -> np.ndarray:
         d[..., D_INV_NS] = NOISE_FACTOR / apps[..., NOISE_SCALE]
     d[..., D_STAGGER] = apps[..., STAGGER]
     d[..., D_OX], d[..., D_OY] = apps[..., OFF_X], apps[..., OFF_Y]
-    d[..., D_NOX] = (apps[..., OFF_Y] + 17) * NOISE_FACTOR
-    d[..., D_NOY] = (apps[..., OFF_X] + 29) * NOISE_FACTOR
+    # Noise offsets, plus 2^15 texels (a multiple of the NOISE size, so the same image)
+    # to keep the coordinates of points within 2^15 / 8 cells of the origin positive.
+    d[..., D_NOX] = (apps[..., OFF_Y] + 17) * NOISE_FACTOR + 2 ** 15
+    d[..., D_NOY] = (apps[..., OFF_X] + 29) * NOISE_FACTOR + 2 ** 15
     d[..., D_LB] = np.minimum(apps[..., SU], apps[..., SV])
     d[..., D_LN] = apps[..., NOISE_SCALE]
     d[..., D_WB], d[..., D_WN] = apps[..., W_BLOCK], apps[..., W_NOISE]
@@ -145,12 +149,15 @@ def derived_table(apps: np.ndarray) -> np.ndarray:
 
 
 def fade(q, footprint):
-    """Pattern amplitudes a_b w_b and a_n w_n of appearance constants q (..., N_DERIVED)
-    seen with pixel footprint ``footprint`` (...) metres: a = clip((L / f - 1) / 2, 0, 1)."""
+    """Faded pattern weights (a_b w_b, a_n w_n), a = clip((L / f - 1) / 2, 0, 1).
+
+    q: derived constants indexed by the D_ constants along the first axis, (D, ...);
+    footprint: (...) metres of surface covered by one pixel.
+    """
     half = 0.5 / footprint
-    a_b = np.minimum(np.maximum(q[..., D_LB] * half - 0.5, 0.0), 1.0)
-    a_n = np.minimum(np.maximum(q[..., D_LN] * half - 0.5, 0.0), 1.0)
-    return a_b * q[..., D_WB], a_n * q[..., D_WN]
+    a_b = np.minimum(np.maximum(q[D_LB] * half - 0.5, 0.0), 1.0)
+    a_n = np.minimum(np.maximum(q[D_LN] * half - 0.5, 0.0), 1.0)
+    return a_b * q[D_WB], a_n * q[D_WN]
 
 
 def pattern(s, h, q) -> np.ndarray:
@@ -165,12 +172,12 @@ def pattern(s, h, q) -> np.ndarray:
     odd = (j & 1).astype(s.dtype)
     i = np.floor(s * q[D_INV_SU] + q[D_OX] + q[D_STAGGER] * odd).astype(np.int32)
     m = LATTICE_SIZE - 1
-    block = LATTICE.ravel().take(((j & m) << LATTICE_BITS) | (i & m))
+    block = _LATTICE_FLAT.take(((j & m) << LATTICE_BITS) | (i & m))
     # Smooth value noise, read from the pre-interpolated NOISE image.
     mn = (1 << NOISE_BITS) - 1
-    ni = (s * q[D_INV_NS] + q[D_NOX]).astype(np.int32)
-    nj = (h * q[D_INV_NS] + q[D_NOY]).astype(np.int32)
-    noise = NOISE.ravel().take(((nj & mn) << NOISE_BITS) | (ni & mn))
+    ni = (s * q[D_INV_NS] + q[D_NOX]).astype(np.int32)       # = floor: the offsets keep
+    nj = (h * q[D_INV_NS] + q[D_NOY]).astype(np.int32)       # these coordinates positive
+    noise = _NOISE_FLAT.take(((nj & mn) << NOISE_BITS) | (ni & mn))
     return 0.5 + q[D_AMP_B] * (block - 0.5) + q[D_AMP_N] * (noise - 0.5)
 
 
