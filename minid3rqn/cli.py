@@ -11,10 +11,26 @@ import sys
 
 # command name -> (module, one-line help). Each module defines add_arguments(parser)
 # and run(args) -> int for its command (named ``cli_<command>`` with dashes -> _).
-COMMANDS: dict[str, tuple[str, str]] = {}
+COMMANDS: dict[str, tuple[str, str]] = {
+    # the main job and the decision module (issue: D3RQN)
+    "fly": ("minid3rqn.rl.commands", "fly the shipped model: GIF + success rate (the main job)"),
+    "train-agent": ("minid3rqn.rl.commands", "train a Q-network (DDQN, D3QN, DDRQN, D3RQN)"),
+    "evaluate": ("minid3rqn.rl.commands", "success rate over many flights, with a 95%% CI"),
+    "reproduce": ("minid3rqn.rl.commands", "rerun Tables 5 and 6 end to end (--quick)"),
+    # sensing (issue: unsupervised depth)
+    "collect": ("minid3rqn.depth.commands", "fly a scripted pilot and save image sequences"),
+    "train-depth": ("minid3rqn.depth.commands", "train DispNet + PoseNet by view synthesis"),
+    "eval-depth": ("minid3rqn.depth.commands", "depth and pose error against ground truth"),
+    # the world (issue: 2.5D world)
+    "calibrate": ("minid3rqn.world.calibration",
+                  "oracle / straight / random success in every scenario"),
+    # the classroom
+    "check": ("minid3rqn.classroom.commands", "check your solution to an exercise"),
+    "exercise": ("minid3rqn.classroom.commands", "run an exercise's small experiment"),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m minid3rqn",
         description="D3RQN obstacle avoidance from monocular depth, in pure NumPy.")
@@ -22,7 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.set_defaults(_module=module, _name=name)
-        _hook(module, name, "add_arguments")(p)
+        if only is None or name == only:  # import a command's module only when it runs
+            _hook(module, name, "add_arguments")(p)
     return parser
 
 
@@ -33,7 +50,9 @@ def _hook(module: str, name: str, kind: str):
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    chosen = next((a for a in argv if a in COMMANDS), None)
+    parser = build_parser(only=chosen)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
