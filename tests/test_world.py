@@ -449,3 +449,43 @@ def test_pilot_policy_and_calibrate_smoke(tmp_path):
     rgb, depth = render(make_scene("basic", 0), (5.0, 5.0, 0.3))
     save_gif([rgb, depth_to_rgb(depth)], tmp_path / "a.gif")
     assert (tmp_path / "a.gif").stat().st_size > 0
+
+
+@pytest.mark.parametrize("shape", [(33, 105), (1, 1), (5, 9)])
+def test_odd_image_sizes_have_finite_depth(scenes, shape):
+    """With an odd height the middle row looks at the horizon: it must see a wall."""
+    scene = scenes["channel"]
+    cam = Camera(*shape, hfov_deg=100.0)
+    rgb, depth = render(scene, start_poses(scene, 1)[0], cam)
+    assert rgb.shape == shape + (3,) and np.all(np.isfinite(depth)) and depth.min() > 0
+
+
+def test_episodes_per_world():
+    env = DroneEnv("corners", seed=3, episodes_per_world=2, observe=False)
+    seeds = [env.reset()[1]["scene_seed"] for _ in range(4)]
+    assert seeds[0] == seeds[1] != seeds[2] == seeds[3]
+    vec = VecDroneEnv(2, "corners", seed=3, episodes_per_world=2, observe=False,
+                      autoreset=False)
+    single = DroneEnv("corners", seed=[3, 1], episodes_per_world=2, observe=False)
+    for _ in range(3):
+        v = vec.reset()[1]
+        s = single.reset()[1]
+        assert v["scene_seed"][1] == s["scene_seed"]
+        np.testing.assert_array_equal(v["pose"][1], s["pose"])
+
+
+def test_wall_normals_face_the_camera():
+    """In a square room the wall ahead is lit by its inward normal, from either side."""
+    from minid3rqn.world.scene import SceneBuilder
+    from minid3rqn.world.textures import LIGHT, make_appearance, wall_shade
+    grey = make_appearance((0.5, 0.5, 0.5), (0.6, 0.6, 0.6))
+    b = SceneBuilder(grey, grey)
+    room = np.array([[-5.0, -5.0], [5.0, -5.0], [5.0, 5.0], [-5.0, 5.0]])
+    b.add_polyline(room, b.add_appearance(grey), closed=True)
+    scene = b.build("room", 0, 1.0, 3.0, room)
+    cam = Camera()
+    for yaw, inward in ((0.0, (-1.0, 0.0)), (np.pi, (1.0, 0.0)), (np.pi / 2, (0.0, -1.0))):
+        hit = cast_columns(scene.batch(), np.array([[0.0, 0.0, yaw]]), cam.column_rays())
+        centre = cam.width // 2
+        assert hit["t"][0, centre] == pytest.approx(5.0, rel=1e-3)
+        assert hit["shade"][0, centre] == pytest.approx(wall_shade(np.dot(inward, LIGHT)))

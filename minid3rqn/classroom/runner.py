@@ -54,7 +54,7 @@ AGENT_BUDGETS = {
 DEPTH_BUDGETS = {
     "smoke": dict(frames=60, test_frames=30, iterations=3, log_every=1, minutes=0.2),
     "tiny": dict(frames=600, test_frames=100, iterations=300, log_every=50, minutes=2),
-    "small": dict(frames=1500, test_frames=200, iterations=1000, log_every=100, minutes=7),
+    "small": dict(frames=2000, test_frames=200, iterations=2000, log_every=100, minutes=8),
 }
 
 

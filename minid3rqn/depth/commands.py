@@ -99,6 +99,12 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
                    help="6: full pose; 3: planar (sideways, forward, yaw)")
     p.add_argument("--pose-init-forward", type=float, default=d.pose_init_forward,
                    help="PoseNet starts at this forward motion per frame (m); <= 0: at 0")
+    p.add_argument("--init-disp", type=float, default=d.init_disp,
+                   help="disparity the heads start at (1 / metres): 0.5 = 2 m, 0.1 = 10 m")
+    p.add_argument("--pose-rot-scale", type=float, default=d.pose_rot_scale,
+                   help="PoseNet rotation output scale (default: the translation's, 0.1)")
+    p.add_argument("--unmasked-weight", type=float, default=d.loss.unmasked_weight,
+                   help="weight of an unmasked photometric term beside the auto-mask")
     p.add_argument("--no-edge-aware", action="store_true")
     p.add_argument("--no-min-reprojection", action="store_true")
     p.add_argument("--no-automask", action="store_true")
@@ -125,12 +131,14 @@ def config_from_args(args):
     loss = LossConfig(ssim_weight=args.ssim, smooth_weight=args.smooth,
                       edge_aware=not args.no_edge_aware,
                       min_reprojection=not args.no_min_reprojection,
-                      automask=not args.no_automask, speed_weight=args.speed_weight)
+                      automask=not args.no_automask, speed_weight=args.speed_weight,
+                      unmasked_weight=args.unmasked_weight)
     init = args.pose_init_forward if args.pose_init_forward and args.pose_init_forward > 0 \
         else None
     return TrainConfig(iterations=args.iterations, batch_size=args.batch_size, lr=args.lr,
                        seed=args.seed, checkpoint_every=args.checkpoint_every,
                        flip=not args.no_flip, pose_dof=args.pose_dof,
+                       init_disp=args.init_disp, pose_rot_scale=args.pose_rot_scale,
                        pose_init_forward=init, loss=loss)
 
 

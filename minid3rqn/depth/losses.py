@@ -52,6 +52,7 @@ class LossConfig:
     padding: str = "border"         # sampler padding for the warp
     full_res: bool = False          # True: monodepth2 (upsample disp); False: SfMLearner
                                     # (downsample images: a wider basin at coarse scales)
+    unmasked_weight: float = 0.0    # beta: + beta mean(e) keeps a gradient on masked pixels
     speed_weight: float = 0.1       # mu; 0 disables the known-speed term
     step: float = 0.8               # metres flown between frames (2 m/s x 0.4 s)
 
@@ -165,7 +166,12 @@ def _photometric_term(target, sources, depth, T, K, cfg):
                                  np.concatenate([target] * s_count, axis=0),
                                  cfg.ssim_weight).data.reshape(s_count, n, 1, h, w)
     identity = identity.min(axis=0).astype(dtype)
-    return ag.mean(ag.minimum(best, identity)), (best.data < identity).astype(dtype)
+    photo = ag.mean(ag.minimum(best, identity))
+    if cfg.unmasked_weight > 0:
+        # A weak unmasked term: where every warp is worse than no warp (a wrong-sign yaw,
+        # a depth far too near) the auto-mask alone sends no gradient at all.
+        photo = photo + ag.mean(ag.minimum(best, 1.0)) * cfg.unmasked_weight
+    return photo, (best.data < identity).astype(dtype)
 
 
 

@@ -55,6 +55,7 @@ class TrainConfig:
     init_disp: float | None = 0.5   # heads start at disp 0.5 (depth 2): log-middle of range
     pose_scale: float = 0.1         # SfMLearner: 0.01; our frames move 0.8 m and 0.2 rad
     pose_head_gain: float = 0.1
+    pose_rot_scale: float | None = None      # rotation output scale (None: pose_scale)
     pose_dof: int = 6               # 6: SfMLearner; 3: planar (tx, tz, yaw)
     pose_init_forward: float | None = 0.8    # start PoseNet at tz = +-0.8 m (forward flight)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -76,7 +77,7 @@ def build_nets(cfg: TrainConfig) -> tuple[DispNet, PoseNet]:
     rng = np.random.default_rng(cfg.seed)
     disp = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales, init_disp=cfg.init_disp, rng=rng)
     pose = PoseNet(n_sources=2, pose_scale=cfg.pose_scale, head_gain=cfg.pose_head_gain,
-                   dof=cfg.pose_dof, rng=rng,
+                   dof=cfg.pose_dof, rng=rng, rot_scale=cfg.pose_rot_scale,
                    init_tz=None if cfg.pose_init_forward is None else
                    (cfg.pose_init_forward, -cfg.pose_init_forward))
     return disp, pose
@@ -195,7 +196,8 @@ class Trainer:
         arrays, meta = load_npz(path)
         saved = TrainConfig.from_dict(meta["config"])
         for key in ("seed", "batch_size", "encoder", "decoder", "n_scales", "lr", "loss",
-                    "init_disp", "pose_scale", "pose_head_gain", "pose_dof", "pose_init_forward"):
+                    "init_disp", "pose_scale", "pose_head_gain", "pose_dof", "pose_init_forward",
+                    "pose_rot_scale"):
             if getattr(saved, key) != getattr(self.cfg, key):
                 raise ValueError(f"resume: the checkpoint {str(path)!r} was made with {key} = "
                                  f"{getattr(saved, key)!r}, this run asks {getattr(self.cfg, key)!r}")

@@ -4,7 +4,9 @@ As in SfMLearner (Zhou et al. 2017): the frames are stacked on the channel axis,
 (N, 3 (1 + S), H, W), and pass through strided 3x3 convolutions (each halves the
 resolution) with ReLU; a 1x1 convolution gives 6 S channels, averaged over the image:
 
-    pose_s = pose_scale * mean_{u,v} conv(features)[6 s : 6 s + 6]
+    pose_s = scale * mean_{u,v} conv(features)[6 s : 6 s + 6]
+
+(``pose_scale`` for the translation, ``rot_scale`` for the rotation.)
 
 The six numbers are (tx, ty, tz, rx, ry, rz): the transform T_{t->s} that maps
 target-camera points into source s's camera (``depth.geometry.pose_vec_to_mat``).
@@ -36,7 +38,7 @@ class PoseNet(Module):
 
     def __init__(self, n_sources: int = 2, channels=(16, 32, 64, 128, 128),
                  pose_scale: float = 0.01, head_gain: float = 1.0, dof: int = 6,
-                 init_tz=None, rng=0, dtype=np.float32):
+                 init_tz=None, rot_scale: float | None = None, rng=0, dtype=np.float32):
         rng = as_rng(rng)
         if n_sources < 1:
             raise ValueError(f"PoseNet: n_sources must be >= 1; got {n_sources}")
@@ -44,6 +46,7 @@ class PoseNet(Module):
             raise ValueError(f"PoseNet: dof must be 6 (full) or 3 (planar); got {dof}")
         self.n_sources, self.channels, self.pose_scale = n_sources, tuple(channels), pose_scale
         self.dof = dof
+        self.rot_scale = pose_scale if rot_scale is None else rot_scale
         self.convs, c_in = [], 3 * (1 + n_sources)
         for c in channels:
             self.convs.append(Conv2d(c_in, c, 3, stride=2, padding=1, rng=rng, dtype=dtype))
@@ -60,7 +63,7 @@ class PoseNet(Module):
 
     def config(self) -> dict:
         return {"n_sources": self.n_sources, "channels": list(self.channels),
-                "pose_scale": self.pose_scale, "dof": self.dof}
+                "pose_scale": self.pose_scale, "rot_scale": self.rot_scale, "dof": self.dof}
 
     def forward(self, target, sources) -> Tensor:
         """target (N, 3, H, W), sources: list of S arrays (N, 3, H, W), RGB in [0, 1].
@@ -80,7 +83,11 @@ class PoseNet(Module):
         for conv in self.convs:
             x = ag.relu(conv(x))
         x = ag.mean(self.head(x), axis=(2, 3))                        # (N, dof S)
-        x = ag.reshape(x * self.pose_scale, (x.shape[0], self.n_sources, self.dof))
+        # translation entries x pose_scale, rotation entries x rot_scale
+        n_t = 3 if self.dof == 6 else 2
+        scale = np.array([self.pose_scale] * n_t + [self.rot_scale] * (self.dof - n_t),
+                         dtype=x.dtype)
+        x = ag.reshape(x, (x.shape[0], self.n_sources, self.dof)) * scale
         if self.dof == 3:                         # (tx, tz, ry) -> (tx, 0, tz, 0, ry, 0)
             zero = Tensor(np.zeros(x.shape[:2] + (1,), dtype=x.dtype))
             a = slice(None)

@@ -123,14 +123,23 @@ class OraclePolicy(Policy):
 
 
 class QNetPolicy(Policy):
-    """Greedy on a trained QNet; recurrent state carried through each flight."""
+    """Greedy on a trained QNet; recurrent state carried through each flight.
 
-    def __init__(self, qnet: QNet, name: str | None = None, epsilon: float = 0.0, seed=None):
+    ``window=k`` (recurrent nets only) instead re-runs the LSTM from a zero state over
+    the flight's last k frames at every step -- exactly what it saw in training (windows
+    of 5 from a zero state) -- rather than carrying the state through the whole flight.
+    """
+
+    def __init__(self, qnet: QNet, name: str | None = None, epsilon: float = 0.0, seed=None,
+                 window: int | None = None):
         self.qnet = qnet
         self.name = name or "QNet"
         self.epsilon = epsilon
         self.rng = np.random.default_rng(seed)
         self.last_q = None
+        self.window = window
+        if window is not None and not qnet.recurrent:
+            raise ValueError("QNetPolicy: window= needs a recurrent net")
 
     @classmethod
     def load(cls, path, name: str | None = None) -> "QNetPolicy":
@@ -149,6 +158,10 @@ class QNetPolicy(Policy):
         self.stacker = FrameStacker(n, cfg.in_channels, (cfg.height, cfg.width_px))
         self.state = self.qnet.initial_state(n)
         self.fresh = np.ones(n, bool)
+        if self.window:
+            self.history = np.zeros((n, self.window, cfg.in_channels, cfg.height, cfg.width_px),
+                                    np.float32)
+            self.seen = np.zeros(n, np.int64)
 
     def act(self, obs, started=None):
         frames = np.asarray(obs["frames"], dtype=np.float32)
@@ -161,8 +174,25 @@ class QNetPolicy(Policy):
             self.stacker.push(frames[live], live)
         self.fresh[:] = False
         from ..autograd import no_grad
-        with no_grad():
-            q, self.state = self.qnet.step(self.stacker.obs, self.state)
+        if self.window:
+            self.seen[started] = 0
+            self.history[:, :-1] = self.history[:, 1:]
+            self.history[:, -1] = self.stacker.obs
+            self.seen += 1
+            k = int(min(self.window, self.seen.max()))
+            with no_grad():    # flights with fewer frames: their window starts later
+                q_all, _ = self.qnet(self.history[:, -k:].transpose(1, 0, 2, 3, 4))
+            q = q_all[-1]
+            short = self.seen < k
+            if short.any():
+                for j in np.unique(self.seen[short]):
+                    rows = np.flatnonzero(self.seen == j)
+                    with no_grad():
+                        qj, _ = self.qnet(self.history[rows, -j:].transpose(1, 0, 2, 3, 4))
+                    q.data[rows] = qj.data[-1]
+        else:
+            with no_grad():
+                q, self.state = self.qnet.step(self.stacker.obs, self.state)
         self.last_q = q.data
         actions = np.argmax(q.data, axis=1).astype(np.int64)
         if self.epsilon > 0:

@@ -5,7 +5,6 @@ Flow: ``make_scene`` builds a world (pymunk shapes + NumPy arrays); ``render`` /
 ``VecDroneEnv`` fly the drone (actions, reward, collision); the policies fly baselines;
 ``topdown`` draws a map; ``calibrate`` measures baseline success rates.
 """
-from .calibrate import calibrate
 from .camera import Camera
 from .distance import (ClearanceField, clearance_field, nearest_distance, nearest_distance_batch,
                        pymunk_nearest_distance, sample_start_pose)
@@ -29,3 +28,12 @@ __all__ = [
     "DroneEnv", "VecDroneEnv", "straight_policy", "random_policy", "Oracle", "oracle_policy",
     "oracle_action", "pilot_policy", "topdown", "depth_to_rgb", "save_gif", "calibrate",
 ]
+
+
+def __getattr__(name):
+    # ``calibrate`` is imported on first use, so that ``python -m
+    # minid3rqn.world.calibration`` does not find its module already imported.
+    if name == "calibrate":
+        from .calibration import calibrate
+        return calibrate
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

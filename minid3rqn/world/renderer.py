@@ -13,9 +13,9 @@ Walls (one 2D hit per column: the smallest t > 0):
     circle (X_c, Z_c), radius R:  |t (x_n, 1) - (X_c, Z_c)|^2 = R^2  gives
         t = (b - sqrt(b^2 - a k)) / a,   a = 1 + x_n^2,  b = x_n X_c + Z_c,
         k = X_c^2 + Z_c^2 - R^2  (a hit iff the root is real and positive).
-Obstacles that cannot appear in the field of view are culled first (segments whose
-image interval misses [x_n(0), x_n(W-1)]; circles behind the camera or beyond one of
-the two side planes of the view), so each column meets only the visible ones.
+Segments that cannot appear in the field of view (image interval outside
+[x_n(0), x_n(W-1)]) are culled first, so each column meets only the visible ones;
+circles are few and all tried.
 
 Rows (y_n = (v - cy) / fy, positive downwards). The floor lies h = altitude below the
 camera and the ceiling H_c - h above it, so the planes' depths are
@@ -105,51 +105,42 @@ def _cast_columns(batch: SceneBatch, poses: np.ndarray, xn: np.ndarray) -> dict:
     ts = t_s[rows, cols, k_s]
     iseg = order[rows, k_s]
 
-    # Circles: keep those not behind the camera nor beyond a side plane of the view.
-    Xc = (batch.circ_c[..., 0] - p[..., 0]) * s - (batch.circ_c[..., 1] - p[..., 1]) * c
-    Zc = (batch.circ_c[..., 0] - p[..., 0]) * c + (batch.circ_c[..., 1] - p[..., 1]) * s
+    # Circles (few per world, so no culling): padding circles have R = 0 and k = inf.
+    cx, cy = batch.circ_c[..., 0] - p[..., 0], batch.circ_c[..., 1] - p[..., 1]
+    Xc, Zc = cx * s - cy * c, cx * c + cy * s                            # (N, C)
     R = batch.circ_r[world[:, 0]]
-    keep = ((R > 0) & (Zc + R > T_MIN) & (Xc - x_hi * Zc < R * np.hypot(1.0, x_hi))
-            & (x_lo * Zc - Xc < R * np.hypot(1.0, x_lo)))
-    if keep.any():
-        order_c, valid_c = _compact(keep, rows)
-        Xk, Zk = Xc[rows, order_c][:, None, :], Zc[rows, order_c][:, None, :]
-        k = np.where(valid_c[:, None, :], Xk * Xk + Zk * Zk - R[rows, order_c][:, None, :] ** 2,
-                     np.inf)
-        b = Zk + xw * Xk                                                  # (N, W, K)
-        a = 1.0 + xw * xw
-        t_c = (b - np.sqrt(b * b - a * k)) / a
-        t_c = np.where(t_c > T_MIN, t_c, np.inf)                         # NaN -> inf
-        k_c = np.argmin(t_c, axis=-1)
-        tc = t_c[rows, cols, k_c]
-        ic = order_c[rows, k_c]
-    else:
-        tc, ic = np.full_like(ts, np.inf), np.zeros_like(iseg)
+    k = np.where(R > 0, Xc * Xc + Zc * Zc - R * R, np.inf)[:, None, :]
+    b = Zc[:, None, :] + xw * Xc[:, None, :]                              # (N, W, C)
+    a = 1.0 + xw * xw
+    t_c = (b - np.sqrt(b * b - a * k)) / a                               # NaN: no hit
+    t_c = np.where(t_c > T_MIN, t_c, np.inf)
+    ic = np.argmin(t_c, axis=-1)
+    tc = t_c[rows, cols, ic]
 
     # The winner's normal n (camera frame, facing the camera) and texture coordinate s.
-    circle = tc < ts
-    t = np.where(circle, tc, ts)
-    radius = R[rows, ic]
-    # Circle: n = (hit - centre) / R, s = R (world angle of n).
-    ncx = (t * xn - Xc[rows, ic]) / radius
-    ncz = (t - Zc[rows, ic]) / radius
-    angle = np.arctan2(ncz, ncx) + poses[:, 2, None] - 0.5 * np.pi
-    s_circle = radius * ((angle + np.pi) % (2 * np.pi) - np.pi)
     # Segment: n perpendicular to B - A, s = u0 + (hit - A).(B - A) / |B - A|.
+    t = np.minimum(tc, ts)
     xa, za = Xa[rows, iseg], Za[rows, iseg]
     ex, ez = Xb[rows, iseg] - xa, Zb[rows, iseg] - za
     length = batch.seg_len[world, iseg]
-    s_seg = batch.seg_u0[world, iseg] + ((t * xn - xa) * ex + (t - za) * ez) / length
-    nsx, nsz = -ez / length, ex / length
-    flip = np.where(nsx * xn + nsz > 0, -1.0, 1.0)                       # face the camera
-    nx = np.where(circle, ncx, nsx * flip)
-    nz = np.where(circle, ncz, nsz * flip)
+    tex_s = batch.seg_u0[world, iseg] + ((t * xn - xa) * ex + (t - za) * ez) / length
+    flip = np.where(ex - ez * xn > 0, -1.0, 1.0) / length                # face the camera
+    nx, nz = -ez * flip, ex * flip
+    app = batch.seg_app[world, iseg]
+    circle = tc < ts
+    if circle.any():
+        # Circle: n = (hit - centre) / R, s = R (world angle of n).
+        radius = R[rows, ic]
+        ncx = (t * xn - Xc[rows, ic]) / radius
+        ncz = (t - Zc[rows, ic]) / radius
+        angle = np.arctan2(ncz, ncx) + poses[:, 2, None] - 0.5 * np.pi
+        nx, nz = np.where(circle, ncx, nx), np.where(circle, ncz, nz)
+        tex_s = np.where(circle, radius * ((angle + np.pi) % (2 * np.pi) - np.pi), tex_s)
+        app = np.where(circle, batch.circ_app[world, ic], app)
     # Shade with the world light l written in camera coordinates: (l.g, l.f).
     lx, lz = LIGHT[0] * s - LIGHT[1] * c, LIGHT[0] * c + LIGHT[1] * s
-    return {"t": t, "s": np.where(circle, s_circle, s_seg), "shade": wall_shade(nx * lx + nz * lz),
-            "cos": np.abs(nx * xn + nz),
-            "app": np.where(circle, batch.circ_app[world, ic], batch.seg_app[world, iseg]),
-            "world": world}
+    return {"t": t, "s": tex_s, "shade": wall_shade(nx * lx + nz * lz),
+            "cos": np.abs(nx * xn + nz), "app": app, "world": world}
 
 
 def _check_camera(camera):
@@ -205,7 +196,7 @@ def _shade_pixels(batch: SceneBatch, poses: np.ndarray, camera: Camera):
     f32 = np.float32
     alt = batch.altitude[world][..., None]                                # (N, 1, 1)
     yv = yn[None, :, None]                                                # (1, H, 1)
-    z_plane = np.where(yv > 0, alt, alt - batch.ceiling[world][..., None]) / yv
+    z_plane = np.where(yv > 0, alt, batch.ceiling[world][..., None] - alt) / np.abs(yv)
     t = hit["t"][:, None, :].astype(f32)                                  # (N, 1, W)
     zp = z_plane.astype(f32)                                              # (N, H, 1)
     wall = t <= zp                                                        # (N, H, W)

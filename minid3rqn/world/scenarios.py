@@ -11,9 +11,9 @@
 
 All are closed (every camera ray hits a wall). Sizes respect the drone: the turning
 radius at 2 m/s and 0.5 rad/s is 4 m, a flight is 50 x 0.8 m = 40 m and a collision
-happens at 0.5 m. No straight line inside any world is 40 m long and free, so flying
-blind fails; the gaps, corridor widths and corner geometry leave room for a pilot who
-looks ahead. ``make_scene(name, seed, **overrides)`` builds one; the keyword overrides
+happens at 0.5 m. The worlds are closed and at most about 40 m across, so flying blind
+fails; the gaps, corridor widths and corner geometry leave room for a pilot who looks
+ahead (turning at 4 m radius). ``make_scene(name, seed, **overrides)`` builds one; the keyword overrides
 replace the scenario's parameters (listed in ``DEFAULTS``).
 """
 from __future__ import annotations

@@ -9,13 +9,15 @@ the floor and the ceiling (s, h) = (x, y) in the world. The colour of a point is
 
 - B: blocks. Cells of su x sv metres (rows offset by ``stagger`` cells, like bricks),
   each with a value drawn from a fixed random lattice.
-- N: smooth value noise on a lattice of n metres, bilinear with smoothstep weights.
+- N: smooth value noise on a lattice of n metres (smoothstep-weighted bilinear
+  interpolation, precomputed at 8 texels per cell in NOISE and read at the nearest texel).
 - c0, c1: the appearance's two colours; w_b + w_n = 1 their pattern weights.
 - shade: walls 0.6 + 0.4 (1 + n . l) / 2 with n the outward surface normal and l a fixed
   horizontal light direction (view-independent); 1 on the floor and the ceiling.
 - a_b, a_n in [0, 1]: anti-aliasing. A pixel covers about f = Z / (fx cos theta)
-  metres of surface (Z its depth, theta the angle between ray and normal); a pattern of
-  cell size L needs two or more pixels per cell, so its contrast is faded by
+  metres of surface (Z its depth, theta the angle between ray and normal; the renderer
+  evaluates f once per column on walls and once per row on the floor and ceiling); a
+  pattern of cell size L needs two or more pixels per cell, so its contrast is faded by
   a = clip((L / f - 1) / 2, 0, 1): full at three pixels per cell, gone at one. Far
   or grazing surfaces thus show their mean colour instead of aliasing noise, much as a
   real camera averages over the pixel's footprint.

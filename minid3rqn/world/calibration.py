@@ -7,7 +7,7 @@ same starts, and a run split into chunks equals one big run.
 
 Command used for docs/world.md:
 
-    python -m minid3rqn.world.calibrate --n-flights 2000 --seed 0
+    python -m minid3rqn.world.calibration --n-flights 2000 --seed 0
 """
 from __future__ import annotations
 
@@ -93,15 +93,17 @@ def calibrate(scenarios=SCENARIOS, n_flights: int = 2000, seed: int = 0, policie
     return results
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description="Success rates of oracle, straight and "
-                                                 "random pilots in every scenario.")
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The command-line options (also used by ``python -m minid3rqn calibrate``)."""
     parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
     parser.add_argument("--policies", nargs="+", default=list(POLICIES), choices=POLICIES)
     parser.add_argument("--n-flights", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="write the results as JSON here")
-    args = parser.parse_args(argv)
+
+
+def run(args) -> int:
+    """Run the calibration for parsed ``args``; print a line per cell, optionally save."""
     results = calibrate(args.scenarios, args.n_flights, args.seed, args.policies, verbose=True)
     if args.out:
         with open(args.out, "w") as f:
@@ -110,7 +112,14 @@ def main(argv=None) -> int:
     return 0
 
 
-__all__ = ["POLICIES", "fly", "calibrate", "main", "make_policy"]
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description="Success rates of oracle, straight and "
+                                                 "random pilots in every scenario.")
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
+__all__ = ["POLICIES", "fly", "calibrate", "add_arguments", "run", "main", "make_policy"]
 
 
 if __name__ == "__main__":
