@@ -342,6 +342,8 @@ def test_run_agent_exercise_smoke(tmp_path):
     assert meta["qnet_config"]["n_actions"] == 7
     saved = json.loads((tmp_path / "actions" / res["tag"] / "result.json").read_text())
     assert 0.0 <= saved["success"] <= 1.0
+    assert not (tmp_path / "actions" / res["tag"] / "checkpoint.npz").exists()
+    assert res["gif"] and Path(res["gif"]).is_file()
 
 
 def test_run_depth_exercise_smoke(tmp_path):

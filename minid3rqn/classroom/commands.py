@@ -78,12 +78,12 @@ def add_arguments_exercise(p: argparse.ArgumentParser) -> None:
 def run_exercise(args) -> int:
     from .runner import run_exercise as run
     try:
-        run(args.exercise, file=args.file, baseline=args.baseline, budget=args.budget,
-            variant=args.variant, seed=args.seed, out=args.out, flights=args.flights,
-            progress=not args.quiet, tag=args.tag)
+        result = run(args.exercise, file=args.file, baseline=args.baseline,
+                     budget=args.budget, variant=args.variant, seed=args.seed, out=args.out,
+                     flights=args.flights, progress=not args.quiet, tag=args.tag)
     except ValueError as e:
         raise SystemExit(f"exercise: {e}")
-    return 0
+    return 0 if result.get("passed", True) else 1
 
 
 __all__ = ["add_arguments_check", "run_check", "add_arguments_exercise", "run_exercise"]

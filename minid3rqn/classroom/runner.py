@@ -16,6 +16,7 @@ seed are comparable.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from pathlib import Path
@@ -167,9 +168,13 @@ def run_agent_exercise(ex: Exercise, module, budget: str = "small", variant: str
         trainer.run()
         t_train = time.time() - t0
         trainer.save_model(run_dir / "model.npz", {"exercise": ex.name, "tag": tag})
+        # the trainer's checkpoint holds the whole replay (~140 MB at budget small); an
+        # exercise run is never resumed, so keep only the model
+        (run_dir / "checkpoint.npz").unlink(missing_ok=True)
         policy = CountingPolicy(QNetPolicy(trainer.agent.online, name=tag), len(actions))
         res = evaluate_policy(policy, cfg.scenario, n_flights, EVAL_SEED,
                               flights_config=eval_flights_cfg, progress=progress)
+        gif = _flight_gif(run_dir, actions, flights=8 if budget != "smoke" else 2)
     share = policy.counts / max(1, policy.counts.sum())
     result = {"exercise": ex.name, "tag": tag, "budget": budget, "seed": seed,
               "variant": cfg.variant, "seq_len": cfg.seq_len,
@@ -178,14 +183,45 @@ def run_agent_exercise(ex: Exercise, module, budget: str = "small", variant: str
               "success": res.rate, "ci": [res.ci_low, res.ci_high], "flights": res.flights,
               "mean_steps": res.mean_steps, "action_share": np.round(share, 4).tolist(),
               "mean_abs_yaw_rate": float(share @ np.abs(np.asarray(actions)[:, 1])),
-              "train_seconds": round(t_train, 1),
+              "train_seconds": round(t_train, 1), "gif": gif,
               "last_curve_row": trainer.curve[-1] if trainer.curve else {}}
     (run_dir / "result.json").write_text(json.dumps(result, indent=2))
     print(f"\n{tag}: success {res.rate:.3f} [{res.ci_low:.3f}, {res.ci_high:.3f}] over "
           f"{res.flights} flights, mean steps {res.mean_steps:.1f} / 50, trained in "
-          f"{t_train / 60:.1f} min; learning curve: {run_dir / 'curve.png'}")
+          f"{t_train / 60:.1f} min; learning curve: {run_dir / 'curve.png'}"
+          + (f"; a test flight: {gif}" if gif else ""))
     print(summary_table(ex.name, out))
     return result
+
+
+def _flight_gif(run_dir: Path, actions, flights: int = 8):
+    """GIF of test flight 0 (top view | camera | depth | Q-values), with ``rl.fly``.
+
+    Every run uses the same evaluation seed, so flight 0 starts in the same world and
+    pose in every run: the GIFs of two runs compare one flight. Must be called inside
+    ``classroom_flights`` (same actions and camera as training). Returns the path, or
+    None if the GIF could not be made (it is a bonus, never a reason to fail a run).
+    """
+    try:
+        names = [f"{w:+.2f}" if abs(v - 2.0) < 1e-9 else f"{v:g}m/s {w:+.2f}"
+                 for v, w in np.asarray(actions)]
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(adapters.patched("minid3rqn.rl.fly", "Flights",
+                                                 _current_flights()))
+            stack.enter_context(adapters.patched("minid3rqn.rl.fly", "ACTION_NAMES", names))
+            from ..rl.fly import fly
+            out = fly(run_dir / "model.npz", None, "basic", EVAL_SEED, flights,
+                      run_dir / "flight.gif")
+        return out.get("gif")
+    except Exception as e:  # noqa: BLE001
+        print(f"(no flight GIF: {type(e).__name__}: {e})")
+        return None
+
+
+def _current_flights():
+    """The Flights factory installed by ``classroom_flights`` (rl.train's, patched)."""
+    import importlib
+    return importlib.import_module("minid3rqn.rl.train").Flights
 
 
 # -- the depth exercise ----------------------------------------------------------------
@@ -278,7 +314,7 @@ def summary_table(exercise: str, out=OUT) -> str:
 # -- entry point -----------------------------------------------------------------------
 def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "small",
                  variant: str | None = None, seed: int = 0, out=OUT, flights: int | None = None,
-                 progress: bool = True, tag: str | None = None) -> dict | None:
+                 progress: bool = True, tag: str | None = None) -> dict:
     ex = find(name)
     if not ex.trains:
         path = Path(file) if file else default_path(ex.filename)
@@ -286,7 +322,7 @@ def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "sm
         print(report.text())
         print(f"\nExercise {ex.name} has nothing to train: passing the check is the result. "
               f"See {ex.doc} for the follow-up (use your op in a network).")
-        return None
+        return {"exercise": ex.name, "passed": report.passed}
     module = None
     if not baseline:
         path = Path(file) if file else default_path(ex.filename)
