@@ -169,15 +169,19 @@ def bench_framework(repeat: int, threads: int) -> dict:
     from minid3rqn.world import render_batch
     policy, model = _qnet_model()
     depth_path = shipped_depth_model("basic")
-    est = load_depth_estimator(depth_path) if depth_path.exists() else None
-    fl = Flights("basic", 1, seed=0, depth="pred" if est else "gt", depth_estimator=est,
-                 autoreset=True)
+    if depth_path.exists():
+        est, depth_name = load_depth_estimator(depth_path), f"DispNet {depth_path.name}"
+    else:   # the speed does not depend on the weights: time an untrained DispNet
+        from minid3rqn.depth.evaluate import DepthEstimator
+        from minid3rqn.nets.dispnet import DispNet
+        est, depth_name = DepthEstimator(DispNet()), "DispNet (default architecture, untrained)"
+    fl = Flights("basic", 1, seed=0, depth="pred", depth_estimator=est, autoreset=True)
     fl.reset()
     policy.reset(1)
 
     def one_step():
         rgb, gt = render_batch(fl.batch, fl.poses, fl.camera)
-        depth = est.predict(rgb) if est else gt
+        depth = est.predict(rgb)
         frames = np.clip(depth, 0, fl.cfg.max_depth) / fl.cfg.max_depth
         a = policy.act({"frames": frames})
         fl.step(a)
@@ -190,7 +194,7 @@ def bench_framework(repeat: int, threads: int) -> dict:
         one_step()
     dt = (time.perf_counter() - t) / n
     return {"part": "framework_hz", "threads": threads, "hz": 1.0 / dt,
-            "depth": "DispNet" if est else "GT (no shipped depth model)", "model": model,
+            "depth": depth_name, "model": model,
             "note": "render + depth + Q step + world step, one flight, batch 1"}
 
 
