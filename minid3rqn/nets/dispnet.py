@@ -41,8 +41,14 @@ def _crop_to(x: Tensor, h: int, w: int) -> Tensor:
     """x[..., :h, :w]; upsampling odd sizes (2x7 -> 4x14) overshoots by one."""
     if x.shape[2] == h and x.shape[3] == w:
         return x
-    from ..depth.geometry import crop
-    return crop(x, (slice(None), slice(None), slice(0, h), slice(0, w)))
+    y = np.ascontiguousarray(x.data[:, :, :h, :w])
+
+    def vjp(g):                                # dL/dx: g in the kept window, 0 elsewhere
+        gx = np.zeros_like(x.data)
+        gx[:, :, :h, :w] = g
+        return (gx,)
+
+    return Tensor.from_op(y, (x,), vjp, "crop")
 
 
 class DispNet(Module):

@@ -68,6 +68,8 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hidden", type=int, default=d.hidden)
     p.add_argument("--depth", default=d.depth, choices=["gt", "pred"])
     p.add_argument("--depth-model", default=None, help="DepthEstimator .npz (--depth pred)")
+    p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
+    p.add_argument("--eps-start", type=float, default=d.eps_start)
     p.add_argument("--out", default=None, help="run folder (default runs/agent/<name>)")
     p.add_argument("--resume", action="store_true")
     p.add_argument("--ship", default=None, help="also copy the model to minid3rqn/models/NAME.npz")
@@ -83,7 +85,8 @@ def config_from_args(args):
                       scenario=args.scenario, seed=args.seed, n_envs=args.n_envs,
                       total_steps=args.steps, learning_starts=args.learning_starts,
                       updates_per_step=args.updates_per_step, eps_decay_steps=args.eps_decay,
-                      replay_capacity=args.replay, hidden=args.hidden, depth=args.depth)
+                      replay_capacity=args.replay, hidden=args.hidden, depth=args.depth,
+                      init_model=args.init_model, eps_start=args.eps_start)
     if args.smoke:
         from .flights import FlightsConfig
         for k, v in SMOKE.items():

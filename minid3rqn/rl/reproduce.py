@@ -55,8 +55,8 @@ def _train_agent(spec: str, out: Path, seed: int, budget: dict, train_depth: str
     add_arguments_train_agent(p)
     argv = ["--variant", variant, "--seed", str(seed), "--steps", str(budget["steps"]),
             "--learning-starts", str(min(5000, budget["steps"] // 6)),
-            "--eps-decay", str(budget["steps"]), "--replay", "100000",
-            "--updates-per-step", "1.5", "--depth", train_depth]
+            "--eps-decay", str(budget["steps"] * 5 // 6), "--replay", "100000",
+            "--updates-per-step", "1.0", "--depth", train_depth]
     if stack:
         argv += ["--stack", stack]
     args = p.parse_args(argv)
@@ -71,6 +71,7 @@ def _train_agent(spec: str, out: Path, seed: int, budget: dict, train_depth: str
 def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred",
               skip_depth: bool = False, tables: str = "both", train_depth: str = "gt") -> dict:
     budget = QUICK if quick else FULL
+    out = out / "quick" if quick else out      # never resume a full run from a quick one
     out.mkdir(parents=True, exist_ok=True)
     results = {"budget": budget, "seed": seed, "depth": depth, "table5": [], "table6": [],
                "started": time.strftime("%Y-%m-%d %H:%M:%S")}

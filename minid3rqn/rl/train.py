@@ -39,17 +39,18 @@ class TrainConfig:
     seed: int = 0
     n_envs: int = 16               # ours: parallel flights
     total_steps: int = 60_000      # ours: environment transitions (all flights)
-    learning_starts: int = 2_000   # ours
+    learning_starts: int = 5_000   # ours
     updates_per_step: float = 1.0  # ours: gradient updates per vector step (n_envs transitions)
     batch_size: int = 32           # paper, Table 4
-    replay_capacity: int = 60_000  # ours: frames
+    replay_capacity: int = 100_000  # ours: frames (uint8, ~340 MB)
     eps_start: float = 1.0         # ours
     eps_end: float = 0.05          # ours
-    eps_decay_steps: int = 30_000  # ours: transitions for the linear decay
+    eps_decay_steps: int = 50_000  # ours: transitions for the linear decay
     hidden: int = 128              # ours: LSTM / FC width
     depth: str = "gt"              # gt | pred (the DispNet's depth maps)
     log_every: int = 2_000         # transitions between learning-curve rows
     checkpoint_every: int = 10_000  # transitions between checkpoints
+    init_model: str = ""           # start from these Q-net weights (fine-tuning), if set
     agent: AgentConfig = field(default_factory=AgentConfig)
     flights: FlightsConfig = field(default_factory=FlightsConfig)
 
@@ -103,6 +104,9 @@ class Trainer:
         self.frame_shape = self.flights.frame_shape
         self.agent = Agent(cfg.qnet_config(self.flights.n_actions, self.frame_shape),
                            cfg.agent, rng=net_seed)
+        if cfg.init_model:
+            self.agent.online.load(cfg.init_model)
+            self.agent.target.copy_from(self.agent.online)
         self.replay = EpisodeReplay(cfg.replay_capacity, cfg.n_envs, self.frame_shape,
                                     seed=replay_seed)
         self.rng = np.random.default_rng(act_seed)
@@ -113,7 +117,7 @@ class Trainer:
         self._window = {"returns": [], "success": [], "lengths": [], "loss": [], "q": []}
         self._ret = np.zeros(cfg.n_envs)
         self._len = np.zeros(cfg.n_envs, dtype=np.int64)
-        self.frames = None
+        self._started = False
         self.state = None
         self.stacker = FrameStacker(cfg.n_envs, cfg.stack, self.frame_shape)
 
@@ -193,9 +197,9 @@ class Trainer:
     def run(self, until: int | None = None) -> dict:
         cfg = self.cfg
         until = cfg.total_steps if until is None else min(until, cfg.total_steps)
-        if self.frames is None and self.steps == 0:
+        if not self._started:
             self._start()
-            self.frames = True
+            self._started = True
         t0 = time.time() - (self.curve[-1]["seconds"] if self.curve else 0.0)
         bar = None
         if self.progress:
@@ -274,7 +278,7 @@ class Trainer:
         tr._window = meta["window"]
         _set_rng_state(tr.rng, meta["rng"])
         _set_rng_state(tr.replay.rng, meta["replay_rng"])
-        tr.frames = True
+        tr._started = True
         return tr
 
 
