@@ -42,7 +42,8 @@ def getitem(x, index) -> Tensor:
     """y = x[index] (slices, ints, boolean masks, integer arrays);  dL/dx = g scattered.
 
     With integer arrays an entry can be picked several times (a gather), so the
-    scatter adds: ``np.add.at``. This is how Q(s, a) is read off a batch of Q-values:
+    scatter adds (``np.add.at``); slices, ints and boolean masks pick each entry at
+    most once, so plain assignment does (much faster). This is how Q(s, a) is read off a batch of Q-values:
     ``q[np.arange(B), actions]``.
     """
     x = as_tensor(x)
@@ -53,9 +54,16 @@ def getitem(x, index) -> Tensor:
     except IndexError as e:
         raise IndexError(f"getitem: index {index!r} does not fit shape {x.shape}: {e}") from None
 
+    parts = index if isinstance(index, tuple) else (index,)
+    gathers = any(isinstance(p, (list, np.ndarray)) and np.asarray(p).dtype != bool
+                  for p in parts)
+
     def vjp(g):
         gx = np.zeros_like(x.data)
-        np.add.at(gx, index, g)
+        if gathers:    # an entry may be picked twice: add, don't overwrite
+            np.add.at(gx, index, g)
+        else:          # slices, ints and masks pick each entry at most once
+            gx[index] = g
         return (gx,)
 
     return Tensor.from_op(np.array(y, copy=True), (x,), vjp, "getitem")

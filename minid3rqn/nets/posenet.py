@@ -26,7 +26,8 @@ from .. import autograd as ag
 from ..autograd import Tensor
 from .init import as_rng
 from .module import Module
-from .dispnet import RGB_MEAN, RGB_STD, Conv2d
+from .dispnet import RGB_MEAN, RGB_STD
+from .layers import Conv2d
 
 
 class PoseNet(Module):
