@@ -111,7 +111,7 @@ class DispNet(Module):
         disps = [None] * self.n_scales
         for j, i in enumerate(reversed(range(levels))):
             x = ag.elu(self.dec_a[j](x))
-            x = upsample(x, 2, "nearest")
+            x = ag.upsample(x, 2, "nearest")
             th, tw = -(-h // 2 ** i), -(-w // 2 ** i)          # ceil(h / 2^i)
             x = _crop_to(x, th, tw)
             if i > 0:
