@@ -37,13 +37,29 @@ def colormap(values: np.ndarray, name: str = "magma", vmin=None, vmax=None) -> n
     return np.rint(pts[i] * (1 - f) + pts[i + 1] * f).astype(np.uint8)
 
 
-def depth_to_rgb(depth: np.ndarray, max_depth: float | None = None) -> np.ndarray:
-    """Near = bright, far = dark (inverse depth through magma), like the paper's figures."""
-    d = np.asarray(depth, dtype=np.float64)
-    inv = 1.0 / np.maximum(d, 1e-3)
-    lo = 1.0 / max_depth if max_depth else np.nanpercentile(inv, 2)
-    hi = np.nanpercentile(inv, 98)
-    return colormap(inv, "magma", lo, max(hi, lo + 1e-6))
+# Depth colour map, as in the paper's figures: red near -> yellow -> green -> cyan -> blue far.
+_DEPTH_RAMP = np.array([[0.85, 0.10, 0.10], [0.95, 0.80, 0.15], [0.25, 0.80, 0.30],
+                        [0.20, 0.75, 0.90], [0.15, 0.20, 0.80]])
+
+
+def depth_to_rgb(depth, near: float = 0.5, far: float = 12.0, log: bool = False) -> np.ndarray:
+    """Depth (..., H, W) in metres -> (..., H, W, 3) uint8, red at ``near``, blue at ``far``.
+
+    Linear in depth, or in log depth with ``log=True`` (more colours for near things);
+    values outside [near, far] are clipped.
+    """
+    lowest = 0.0 if not log else np.nextafter(0.0, 1.0)  # log depth needs near > 0
+    if not lowest <= near < far:
+        raise ValueError(f"depth_to_rgb: need 0 <= near < far (0 < near with log=True); "
+                         f"got near={near}, far={far}")
+    d = np.clip(np.asarray(depth, np.float64), near, far)
+    if log:
+        d, near, far = np.log(d), np.log(near), np.log(far)
+    x = (d - near) / (far - near) * (len(_DEPTH_RAMP) - 1)            # 0 near .. 4 far
+    i = np.minimum(np.floor(x).astype(int), len(_DEPTH_RAMP) - 2)
+    w = (x - i)[..., None]
+    ramp = _DEPTH_RAMP
+    return ((ramp[i] * (1 - w) + ramp[i + 1] * w) * 255 + 0.5).astype(np.uint8)
 
 
 def resize(img: np.ndarray, height: int, width: int | None = None) -> np.ndarray:
@@ -118,10 +134,10 @@ def bar_chart(values, names, size=(160, 120), highlight: int | None = None,
 
 
 def write_gif(frames, path, fps: float = 5.0) -> Path:
-    """Write RGB uint8 frames (all the same size) as a looping GIF."""
+    """Write frames (RGB uint8 arrays or PIL images, one size) as a looping GIF."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    ims = [Image.fromarray(to_rgb(f)) for f in frames]
+    ims = [f if isinstance(f, Image.Image) else Image.fromarray(to_rgb(f)) for f in frames]
     if not ims:
         raise ValueError("write_gif: frames is empty")
     ims[0].save(path, save_all=True, append_images=ims[1:], duration=int(1000 / fps), loop=0,

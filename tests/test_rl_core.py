@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from minid3rqn import autograd as ag
-from minid3rqn.nets.qnet import QNet, QNetConfig, VARIANTS, build_qnet
+from minid3rqn.nets.qnet import QNetConfig, VARIANTS, build_qnet
 from minid3rqn.rl.agent import Agent, AgentConfig, FrameStacker, double_q_targets
 from minid3rqn.rl.replay import EpisodeReplay
 from minid3rqn.rl.policies import QNetPolicy

@@ -181,27 +181,18 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
 
 
 # -- pictures ----------------------------------------------------------------------------
-def near_far_colours(depth, lo: float, hi: float) -> np.ndarray:
-    """Depth -> RGB uint8, red near, blue far (a jet-like map on log depth)."""
-    d = np.log(np.clip(np.asarray(depth, dtype=np.float64), lo, hi))
-    t = (d - np.log(lo)) / max(np.log(hi) - np.log(lo), 1e-9)            # 0 near, 1 far
-    x = 1.0 - t                                                          # 1 near (red)
-    r = np.clip(1.5 - np.abs(4 * x - 3), 0, 1)
-    g = np.clip(1.5 - np.abs(4 * x - 2), 0, 1)
-    b = np.clip(1.5 - np.abs(4 * x - 1), 0, 1)
-    return (np.stack([r, g, b], -1) * 255 + 0.5).astype(np.uint8)
-
-
 def comparison_picture(rgb, pred, gt, path, zoom: int = 3, gap: int = 3) -> Path:
     """Rows of RGB | predicted depth (median-scaled) | GT depth, written as a PNG."""
     from PIL import Image
+
+    from ..viz import depth_to_rgb
     rows = []
     for im, p, g in zip(rgb, pred, gt):
         p = p * (np.median(g) / np.median(p))
         lo, hi = max(float(np.percentile(g, 1)), 0.1), float(np.percentile(g, 99))
         white = np.full((im.shape[0], gap, 3), 255, np.uint8)
-        rows.append(np.concatenate([im, white, near_far_colours(p, lo, hi), white,
-                                    near_far_colours(g, lo, hi)], axis=1))
+        rows.append(np.concatenate([im, white, depth_to_rgb(p, lo, hi, log=True), white,
+                                    depth_to_rgb(g, lo, hi, log=True)], axis=1))
         rows.append(np.full((gap, rows[-1].shape[1], 3), 255, np.uint8))
     img = np.concatenate(rows[:-1], axis=0)
     img = img.repeat(zoom, 0).repeat(zoom, 1)
@@ -212,4 +203,4 @@ def comparison_picture(rgb, pred, gt, path, zoom: int = 3, gap: int = 3) -> Path
 
 
 __all__ = ["METRICS", "DepthEstimator", "depth_metrics", "pose_errors", "evaluate",
-           "near_far_colours", "comparison_picture"]
+           "comparison_picture"]

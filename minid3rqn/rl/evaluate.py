@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .flights import Flights, FlightsConfig
-from .policies import Policy, QNetPolicy
+from .policies import Policy
 
 
 def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float]:

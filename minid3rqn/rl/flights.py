@@ -11,7 +11,8 @@ test flights are in fresh worlds) and starts at a random free pose. One ``step``
        depth only when the Q-net reads GT depth, ~10x faster);
     3. reward: the paper's Eq. 5, d_nearest at the new pose, or -1 on collision;
     4. render the new view: GT depth (``depth="gt"``, one ray cast per column) or the
-       DispNet's depth from the RGB frame (``depth="pred"``), times a calibrated scale.
+       DispNet's depth from the RGB frame (``depth="pred"``; metres through the
+       estimator's own scale, fixed from the flight speed, times ``depth_scale``).
 
 The Q-nets read ``frames``: depth clipped to ``max_depth`` metres and divided by it,
 so values lie in [0, 1]. After ``max_steps`` actions without a collision a flight is
@@ -42,7 +43,7 @@ class FlightsConfig:
     max_steps: int = 50          # paper: success = 50 steps without collision
     n_worlds: int = 32           # ours: scenes in the pool of one Flights object
     max_depth: float = 10.0      # ours: depth clip (m) for the Q-net input
-    depth_scale: float = 1.0     # metres per unit of predicted depth (1 for GT)
+    depth_scale: float = 1.0     # extra factor on predicted depth (1: trust the estimator)
     test_worlds: bool = False    # draw worlds from the evaluation seed range
 
 
@@ -232,19 +233,4 @@ class Flights:
         self.rng.bit_generator.state = json.loads(meta["rng"])
 
 
-def calibrate_depth_scale(estimator, scenario: str, seed: int = 0, n: int = 64) -> float:
-    """One scalar per depth network: median over n random views of median(GT) / median(pred).
-
-    Monocular depth is known only up to scale; the Q-net needs metres-like input, so the
-    scale is fixed once per depth network (SfMLearner evaluates with the same medians,
-    per image).
-    """
-    fl = Flights(scenario, n, seed=seed, depth="gt", autoreset=False)
-    fl.reset()
-    rgb, gt = render_batch(fl.batch, fl.poses, fl.camera)
-    pred = np.asarray(estimator.predict(rgb), dtype=np.float64)
-    ratio = np.median(gt.reshape(n, -1), axis=1) / np.maximum(np.median(pred.reshape(n, -1), axis=1), 1e-9)
-    return float(np.median(ratio))
-
-
-__all__ = ["Flights", "FlightsConfig", "StepResult", "depth_only", "calibrate_depth_scale"]
+__all__ = ["Flights", "FlightsConfig", "StepResult", "depth_only"]

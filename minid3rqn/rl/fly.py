@@ -6,13 +6,11 @@ camera RGB | depth the Q-net sees | Q-values (chosen action highlighted).
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
 from .. import viz
 from ..world import render_batch, topdown
-from ..world.kinematics import ACTIONS
 from .evaluate import run_flights, wilson_interval
 from .flights import Flights, FlightsConfig
 from .policies import QNetPolicy
@@ -43,7 +41,7 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
             render_batch(scene, obs["poses"][k:k + 1], flights.camera)[0][0]
         bars = viz.bar_chart(policy.last_q[k], ACTION_NAMES, (160, 120), int(actions[k]),
                              title=f"Q-values, step {t + 1}")
-        panels = [rgb, viz.depth_to_rgb(obs["depth"][k], max_depth), bars]
+        panels = [rgb, viz.depth_to_rgb(obs["depth"][k], 0.5, max_depth), bars]
         top = np.asarray(topdown(scene, np.array(path), obs["poses"][k], flights.camera, 192))
         frames_out.append(viz.hstack([top] + panels, 192))
         path.append(flights.poses[k].copy())

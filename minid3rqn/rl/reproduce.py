@@ -19,7 +19,7 @@ import json
 import time
 from pathlib import Path
 
-from .commands import (MODELS, VARIANT_NAMES, add_arguments_train_agent, config_from_args,
+from .commands import (MODELS, add_arguments_train_agent, config_from_args,
                        load_depth_estimator, make_policy, run_name)
 from .evaluate import evaluate_policy
 from .train import train

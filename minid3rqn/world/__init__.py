@@ -17,7 +17,8 @@ from .policies import (Oracle, oracle_action, oracle_policy, pilot_policy, rando
 from .renderer import render, render_batch
 from .scenarios import SCENARIOS, make_scene
 from .scene import Scene, SceneBatch
-from .topview import depth_to_rgb, save_gif, topdown
+from .topview import topdown
+from ..viz import depth_to_rgb, write_gif as save_gif  # re-exported for convenience
 
 __all__ = [
     "Camera", "Scene", "SceneBatch", "SCENARIOS", "make_scene", "render", "render_batch",

@@ -1,7 +1,6 @@
-"""Pictures: a top-down map of a world (Pillow), a depth colour map, and GIF writing.
+"""A top-down map of a world with the drone, its trajectory and its field of view (Pillow).
 
-``depth_to_rgb`` and ``save_gif`` are generic image helpers kept here until a shared
-``minid3rqn.viz`` takes them over.
+The generic picture helpers (depth colour map, GIF writing) are in ``minid3rqn.viz``.
 """
 from __future__ import annotations
 
@@ -11,23 +10,6 @@ from PIL import Image, ImageDraw
 from .camera import Camera
 from .scene import Scene
 from .textures import C0, C1
-
-# Depth colour map: red near -> yellow -> green -> cyan -> blue far.
-_RAMP = np.array([[0.85, 0.10, 0.10], [0.95, 0.80, 0.15], [0.25, 0.80, 0.30],
-                  [0.15, 0.75, 0.85], [0.15, 0.20, 0.80]])
-
-
-def depth_to_rgb(depth, near: float = 0.5, far: float = 12.0) -> np.ndarray:
-    """Depth (..., H, W) metres -> (..., H, W, 3) uint8: red at ``near`` through yellow,
-    green and cyan to blue at ``far``, linear in depth (clipped outside)."""
-    if not 0 <= near < far:
-        raise ValueError(f"depth_to_rgb: need 0 <= near < far; got near={near}, far={far}")
-    d = np.clip(np.asarray(depth, np.float64), near, far)
-    x = (d - near) / (far - near) * (len(_RAMP) - 1)                       # 0 near .. 4 far
-    i = np.minimum(np.floor(x).astype(int), len(_RAMP) - 2)
-    w = (x - i)[..., None]
-    return ((_RAMP[i] * (1 - w) + _RAMP[i + 1] * w) * 255 + 0.5).astype(np.uint8)
-
 
 def topdown(scene: Scene, trajectory=None, pose=None, camera: Camera | None = None,
             size: int = 400, fov_range: float = 6.0, margin: float = 1.0) -> Image.Image:
@@ -92,14 +74,4 @@ def topdown(scene: Scene, trajectory=None, pose=None, camera: Camera | None = No
     return img
 
 
-def save_gif(frames, path, fps: float = 5.0):
-    """Write a list of (H, W, 3) uint8 arrays or PIL images as an animated GIF."""
-    images = [f if isinstance(f, Image.Image) else Image.fromarray(np.asarray(f, np.uint8))
-              for f in frames]
-    if not images:
-        raise ValueError("save_gif: frames must not be empty")
-    images[0].save(path, save_all=True, append_images=images[1:],
-                   duration=int(round(1000 / fps)), loop=0)
-
-
-__all__ = ["depth_to_rgb", "topdown", "save_gif"]
+__all__ = ["topdown"]
