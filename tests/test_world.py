@@ -489,3 +489,16 @@ def test_wall_normals_face_the_camera():
         centre = cam.width // 2
         assert hit["t"][0, centre] == pytest.approx(5.0, rel=1e-3)
         assert hit["shade"][0, centre] == pytest.approx(wall_shade(np.dot(inward, LIGHT)))
+
+
+@pytest.mark.parametrize("height", [32, 33])  # 33: a row on the horizon (y_n = 0)
+def test_depth_only_renderer_equals_full_render(height):
+    from minid3rqn.world import SceneBatch, render_depth_batch, sample_start_pose
+    scenes = [make_scene("basic", seed=i) for i in range(3)]
+    rng = np.random.default_rng(0)
+    poses = np.array([sample_start_pose(s, rng) for s in scenes])
+    cam = Camera(height=height, width=104)
+    _, depth = render_batch(SceneBatch(scenes), poses, cam)
+    only = render_depth_batch(SceneBatch(scenes), poses, cam)
+    assert np.all(np.isfinite(only)) and np.all(only > 0)
+    np.testing.assert_array_equal(only, depth)

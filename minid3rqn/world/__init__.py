@@ -14,7 +14,7 @@ from .geometry import (backproject, inverse_warp_numpy, pose_to_camera_transform
 from .kinematics import (ACTION_INTERVAL, ACTIONS, SAFE_DISTANCE, integrate_arc, paper_reward)
 from .policies import (Oracle, oracle_action, oracle_policy, pilot_policy, random_policy,
                        straight_policy)
-from .renderer import render, render_batch
+from .renderer import render, render_batch, render_depth_batch
 from .scenarios import SCENARIOS, make_scene
 from .scene import Scene, SceneBatch
 from .topview import topdown

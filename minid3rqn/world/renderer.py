@@ -151,6 +151,49 @@ def _check_camera(camera):
     return camera
 
 
+def _as_batch(scenes, poses, name: str):
+    """(SceneBatch, poses (N, 3) float64) from the arguments of the batched renderers."""
+    if isinstance(scenes, Scene):
+        batch = scenes.batch()
+    elif isinstance(scenes, SceneBatch):
+        batch = scenes
+    elif isinstance(scenes, (list, tuple)):
+        batch = SceneBatch(scenes)
+    else:
+        raise TypeError(f"{name}: scenes must be a Scene, a SceneBatch or a list of "
+                        f"Scene; got {type(scenes).__name__}")
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 3 or (len(batch) > 1 and len(poses) != len(batch)):
+        want = "(N, 3)" if len(batch) == 1 else f"({len(batch)}, 3)"
+        raise ValueError(f"{name}: poses must have shape {want} holding (x, y, yaw); "
+                         f"got shape {poses.shape}")
+    if not np.all(np.isfinite(poses)):
+        raise ValueError(f"{name}: poses must be finite")
+    return batch, poses
+
+
+def _plane_depth(batch: SceneBatch, world: np.ndarray, yn: np.ndarray) -> np.ndarray:
+    """Floor (rows below the horizon) or ceiling depth per row: h / |y_n|; inf at y_n = 0."""
+    alt = batch.altitude[world][..., None]                                # (N, 1, 1)
+    yv = yn[None, :, None]                                                # (1, H, 1)
+    with np.errstate(divide="ignore"):
+        return np.where(yv > 0, alt, batch.ceiling[world][..., None] - alt) / np.abs(yv)
+
+
+def render_depth_batch(scenes, poses, camera: Camera | None = None) -> np.ndarray:
+    """Ground-truth depth only, (N, H, W) float32: ``render_batch`` without the colours.
+
+    depth(v, u) = min(t(u), Z_plane(v)): the column's wall hit or the floor / ceiling,
+    whichever is nearer. About 10x faster than ``render_batch``, for agents trained on
+    GT depth.
+    """
+    camera = _check_camera(camera)
+    batch, poses = _as_batch(scenes, poses, "render_depth_batch")
+    hit = cast_columns(batch, poses, camera.column_rays())
+    z_plane = _plane_depth(batch, hit["world"], camera.row_rays())
+    return np.minimum(hit["t"][:, None, :], z_plane).astype(np.float32)
+
+
 def render_batch(scenes, poses, camera: Camera | None = None):
     """Render N views: one per (world, pose), or N poses in one world.
 
@@ -164,22 +207,7 @@ def render_batch(scenes, poses, camera: Camera | None = None):
         rgb (N, H, W, 3) uint8 and depth (N, H, W) float32 (pinhole depth, metres).
     """
     camera = _check_camera(camera)
-    if isinstance(scenes, Scene):
-        batch = scenes.batch()
-    elif isinstance(scenes, SceneBatch):
-        batch = scenes
-    elif isinstance(scenes, (list, tuple)):
-        batch = SceneBatch(scenes)
-    else:
-        raise TypeError(f"render_batch: scenes must be a Scene, a SceneBatch or a list of "
-                        f"Scene; got {type(scenes).__name__}")
-    poses = np.asarray(poses, dtype=np.float64)
-    if poses.ndim != 2 or poses.shape[1] != 3 or (len(batch) > 1 and len(poses) != len(batch)):
-        want = "(N, 3)" if len(batch) == 1 else f"({len(batch)}, 3)"
-        raise ValueError(f"render_batch: poses must have shape {want} holding (x, y, yaw); "
-                         f"got shape {poses.shape}")
-    if not np.all(np.isfinite(poses)):
-        raise ValueError("render_batch: poses must be finite")
+    batch, poses = _as_batch(scenes, poses, "render_batch")
     with np.errstate(divide="ignore", invalid="ignore"):   # horizon rows: x / 0, inf * 0
         return _shade_pixels(batch, poses, camera)
 
@@ -196,7 +224,7 @@ def _shade_pixels(batch: SceneBatch, poses: np.ndarray, camera: Camera):
     f32 = np.float32
     alt = batch.altitude[world][..., None]                                # (N, 1, 1)
     yv = yn[None, :, None]                                                # (1, H, 1)
-    z_plane = np.where(yv > 0, alt, batch.ceiling[world][..., None] - alt) / np.abs(yv)
+    z_plane = _plane_depth(batch, world, yn)
     t = hit["t"][:, None, :].astype(f32)                                  # (N, 1, W)
     zp = z_plane.astype(f32)                                              # (N, H, 1)
     wall = t <= zp                                                        # (N, H, W)
