@@ -9,7 +9,7 @@ test flights are in fresh worlds) and starts at a random free pose. One ``step``
     2. collision if the clearance drops below 0.5 m at any check (paper; the same test
        as ``world.env.VecDroneEnv``, which renders RGB on every step: this layer casts
        depth only when the Q-net reads GT depth, ~10x faster);
-    3. reward: the paper's Eq. 5, d_nearest at the new pose, or -1 on collision;
+    3. reward: the paper's Eq. 4, d_nearest at the new pose, or -1 on collision;
     4. render the new view: GT depth (``depth="gt"``, one ray cast per column) or the
        DispNet's depth from the RGB frame (``depth="pred"``; metres through the
        estimator's own scale, fixed from the flight speed, times ``depth_scale``).
@@ -52,7 +52,7 @@ class StepResult:
     frames: np.ndarray       # (n, H, W) float32 next observation (a new episode's first
                              # frame for a flight that was reset)
     final_frames: np.ndarray  # (n, H, W) the frame after the action (before any reset)
-    rewards: np.ndarray      # (n,) float32, Eq. 5
+    rewards: np.ndarray      # (n,) float32, Eq. 4
     terminated: np.ndarray   # (n,) bool collision
     truncated: np.ndarray    # (n,) bool time limit reached without collision
     success: np.ndarray      # (n,) bool == truncated

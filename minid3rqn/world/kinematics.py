@@ -149,7 +149,7 @@ def wrap_angle(a):
 
 
 def paper_reward(d_nearest, collided):
-    """The paper's reward (Eq. 5): R = d_nearest without collision, -1 on collision.
+    """The paper's reward (Eq. 4): R = d_nearest without collision, -1 on collision.
 
     Works on scalars (returns float) and on arrays (elementwise, returns float64 array).
     """
