@@ -75,22 +75,23 @@ class EpisodeReplay:
     def quantize(frames: np.ndarray) -> np.ndarray:
         return np.clip(np.rint(np.asarray(frames, dtype=np.float32) * 255.0), 0, 255).astype(np.uint8)
 
-    def _write_frame(self, s: int, frame: np.ndarray) -> int:
-        i = int(self.count[s])
-        j = i % self.cap
-        self.frames[s, j] = frame
-        self.has_next[s, j] = False
-        self.terminals[s, j] = False
-        self.ep_start[s, j] = self.open_start[s]
-        self.count[s] = i + 1
-        return i
+    def _write_frames(self, streams: np.ndarray, frames: np.ndarray) -> None:
+        """Append one frame to each of the (distinct) ``streams``, in a fresh slot."""
+        j = self.count[streams] % self.cap
+        self.frames[streams, j] = frames
+        self.has_next[streams, j] = False
+        self.terminals[streams, j] = False
+        self.ep_start[streams, j] = self.open_start[streams]
+        self.count[streams] += 1
 
     def start_episodes(self, streams, frames: np.ndarray) -> None:
         """First frame o_0 (values in [0, 1]) of a new episode in each given stream."""
-        q = self.quantize(frames)
-        for k, s in enumerate(np.atleast_1d(streams)):
-            self.open_start[s] = self.count[s]
-            self._write_frame(int(s), q[k])
+        streams = np.atleast_1d(np.asarray(streams, dtype=np.int64))
+        if len(np.unique(streams)) != len(streams):
+            raise ValueError(f"EpisodeReplay.start_episodes: streams must be distinct; got "
+                             f"{streams.tolist()}")
+        self.open_start[streams] = self.count[streams]
+        self._write_frames(streams, self.quantize(frames))
 
     def add_step(self, actions, rewards, terminals, truncated, next_frames) -> None:
         """One vector step for every stream: a_t, r_t, collision flag, time-limit flag and
@@ -99,20 +100,19 @@ class EpisodeReplay:
         A finished stream (terminal or truncated) needs ``start_episodes`` before its
         next ``add_step``.
         """
-        q = self.quantize(next_frames)
+        closed = np.flatnonzero(self.open_start < 0)
+        if closed.size:
+            raise RuntimeError(f"EpisodeReplay.add_step: stream {int(closed[0])} has no open "
+                               f"episode; call start_episodes first")
+        streams = np.arange(self.n_streams)
+        j = (self.count - 1) % self.cap                   # the slot holding o_t
+        self.actions[streams, j] = actions
+        self.rewards[streams, j] = rewards
+        self.terminals[streams, j] = np.asarray(terminals, bool)
+        self.has_next[streams, j] = True
+        self._write_frames(streams, self.quantize(next_frames))   # o_{t+1}
         done = np.asarray(terminals, bool) | np.asarray(truncated, bool)
-        for s in range(self.n_streams):
-            if self.open_start[s] < 0:
-                raise RuntimeError(f"EpisodeReplay.add_step: stream {s} has no open episode; "
-                                   f"call start_episodes first")
-            j = (int(self.count[s]) - 1) % self.cap
-            self.actions[s, j] = actions[s]
-            self.rewards[s, j] = rewards[s]
-            self.terminals[s, j] = bool(terminals[s])
-            self.has_next[s, j] = True
-            self._write_frame(s, q[s])
-            if done[s]:
-                self.open_start[s] = -1
+        self.open_start[done] = -1
 
     # -- reading --------------------------------------------------------------------
     def __len__(self) -> int:
