@@ -63,9 +63,14 @@ def make_warp_picture(path, seed: int = 0, zoom: int = 2) -> Path:
                   viz.label(viz.resize(viz.to_rgb(warped), h), f"source: {name}"),
                   viz.label(viz.resize(err_rgb, h), f"|error| mean {mean:.3f}")]
         lines.append(viz.hstack(panels, h))
+    return _save_rows(lines, path)
+
+
+def _save_rows(lines, path) -> Path:
+    """Stack picture rows (same width) with white gaps and write them as a PNG."""
+    from PIL import Image
     gap = np.full((6, lines[0].shape[1], 3), 255, np.uint8)
     out = np.concatenate([x for line in lines for x in (line, gap)][:-1], axis=0)
-    from PIL import Image
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(out).save(path)
@@ -73,8 +78,6 @@ def make_warp_picture(path, seed: int = 0, zoom: int = 2) -> Path:
 
 
 def make_fov_picture(path, seed: int = 0, fovs=(90.0, 60.0, 45.0), zoom: int = 2) -> Path:
-    from PIL import Image
-
     from .. import viz
     from ..world import Camera, make_scene, render_batch, sample_start_pose
     from ..world import depth_to_rgb, topdown
@@ -97,12 +100,7 @@ def make_fov_picture(path, seed: int = 0, fovs=(90.0, 60.0, 45.0), zoom: int = 2
                   viz.label(viz.resize(depth_to_rgb(depth[0], 1.5, 10.0), h * 2),
                             "GT depth (red near, blue far)")]
         lines.append(viz.hstack(panels, h * 2))
-    gap = np.full((6, lines[0].shape[1], 3), 255, np.uint8)
-    out = np.concatenate([x for line in lines for x in (line, gap)][:-1], axis=0)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(out).save(path)
-    return path
+    return _save_rows(lines, path)
 
 
 def main(argv=None) -> int:
