@@ -90,9 +90,18 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--iterations", type=int, default=d.iterations)
     p.add_argument("--batch-size", type=int, default=d.batch_size)
     p.add_argument("--lr", type=float, default=d.lr)
+    p.add_argument("--lr-decay-at", type=int, default=d.lr_decay_at,
+                   help="from this iteration on, lr x 0.1 (default: never)")
+    p.add_argument("--eval-every", type=int, default=500,
+                   help="held-out evaluation (200 frames) every N iterations, for the "
+                        "learning curve curve.csv/.png (0: off)")
+    p.add_argument("--gt-pose", action="store_true",
+                   help="ablation: warp with GT relative poses instead of PoseNet's")
     p.add_argument("--ssim", type=float, default=d.loss.ssim_weight,
                    help="SSIM weight alpha (0: plain L1)")
     p.add_argument("--smooth", type=float, default=d.loss.smooth_weight)
+    p.add_argument("--smooth-order", type=int, default=d.loss.smooth_order, choices=(1, 2),
+                   help="1: penalise disparity slopes; 2: curvature (planes cost nothing)")
     p.add_argument("--speed-weight", type=float, default=d.loss.speed_weight,
                    help="weight of the known-speed term (0 disables it)")
     p.add_argument("--pose-dof", type=int, default=d.pose_dof, choices=(3, 6),
@@ -129,6 +138,7 @@ def config_from_args(args):
     from .losses import LossConfig
     from .train import TrainConfig
     loss = LossConfig(ssim_weight=args.ssim, smooth_weight=args.smooth,
+                      smooth_order=args.smooth_order,
                       edge_aware=not args.no_edge_aware,
                       min_reprojection=not args.no_min_reprojection,
                       automask=not args.no_automask, speed_weight=args.speed_weight,
@@ -136,10 +146,50 @@ def config_from_args(args):
     init = args.pose_init_forward if args.pose_init_forward and args.pose_init_forward > 0 \
         else None
     return TrainConfig(iterations=args.iterations, batch_size=args.batch_size, lr=args.lr,
+                       lr_decay_at=args.lr_decay_at, gt_pose=args.gt_pose,
                        seed=args.seed, checkpoint_every=args.checkpoint_every,
                        flip=not args.no_flip, pose_dof=args.pose_dof,
                        init_disp=args.init_disp, pose_rot_scale=args.pose_rot_scale,
                        pose_init_forward=init, loss=loss)
+
+
+class _LearningCurve:
+    """Training callback: every ``every`` iterations, the held-out abs rel / delta < 1.25 /
+    pose errors on 200 test frames, appended to ``curve.csv`` and plotted to ``curve.png``
+    (training loss beside them). Rows of a resumed run are kept (read back from the CSV)."""
+
+    COLUMNS = ("iteration", "loss", "photo", "abs_rel", "a1", "rot_err_deg", "trans_err_m")
+
+    def __init__(self, folder: Path, test, every: int):
+        self.csv, self.png = folder / "curve.csv", folder / "curve.png"
+        self.test = test.select_flights(np.unique(test.flight)[:4])  # 4 flights x 50 frames
+        self.every = every
+        self.rows = []
+        if self.csv.is_file():
+            lines = self.csv.read_text().splitlines()[1:]
+            self.rows = [dict(zip(self.COLUMNS, map(float, line.split(",")))) for line in lines]
+
+    def __call__(self, trainer, row) -> None:
+        from ..viz import line_plot
+        from .evaluate import DepthEstimator, evaluate
+        it = trainer.iteration
+        if not self.every or (it % self.every and it != trainer.cfg.iterations):
+            return
+        if self.rows and self.rows[-1]["iteration"] >= it:
+            return
+        r = evaluate(DepthEstimator(trainer.disp), self.test, posenet=trainer.pose)
+        self.rows.append({"iteration": it, "loss": row["loss"], "photo": row["photo"],
+                          **{k: r[k] for k in self.COLUMNS[3:]}})
+        text = ",".join(self.COLUMNS) + "\n" + "".join(
+            ",".join(f"{rw[k]:.6g}" for k in self.COLUMNS) + "\n" for rw in self.rows)
+        tmp = self.csv.with_suffix(".csv.tmp")
+        tmp.write_text(text)
+        tmp.replace(self.csv)
+        its = [rw["iteration"] for rw in self.rows]
+        line_plot({"held-out abs rel": (its, [rw["abs_rel"] for rw in self.rows]),
+                   "held-out delta<1.25": (its, [rw["a1"] for rw in self.rows])},
+                  self.png, title="train-depth: held-out depth quality (200 frames)",
+                  xlabel="iteration", ylim=(0.0, 1.0))
 
 
 def run_train_depth(args) -> int:
@@ -163,7 +213,8 @@ def run_train_depth(args) -> int:
     elif args.init_from:
         trainer.init_from(args.init_from)
     t1 = time.time()
-    trainer.run(progress=not args.quiet)
+    curve = _LearningCurve(paths["dir"], test, args.eval_every)
+    trainer.run(progress=not args.quiet, callback=curve)
     t_train = time.time() - t1
     estimator = DepthEstimator(trainer.disp, trainer.speed_scale())
     results = evaluate(estimator, test, posenet=trainer.pose)

@@ -47,6 +47,7 @@ class LossConfig:
     ssim_weight: float = 0.85       # alpha; 0 gives SfMLearner's plain L1
     smooth_weight: float = 1e-3     # lambda (monodepth2: 1e-3)
     edge_aware: bool = True
+    smooth_order: int = 1           # 1: |grad d| (monodepth2); 2: |grad^2 d| (planes are free)
     min_reprojection: bool = True   # per-pixel min over sources (monodepth2)
     automask: bool = True           # monodepth2's auto-masking
     padding: str = "border"         # sampler padding for the warp
@@ -113,21 +114,38 @@ def downsample_image(image: np.ndarray, factor: int) -> np.ndarray:
     return image.reshape(n, c, h // factor, factor, w // factor, factor).mean(axis=(3, 5))
 
 
-def smoothness_loss(disp, image, edge_aware: bool = True) -> Tensor:
-    """mean |dx d*| w_x + mean |dy d*| w_y with d* = disp / mean(disp) per image.
+def smoothness_loss(disp, image, edge_aware: bool = True, order: int = 1) -> Tensor:
+    """mean |dx^k d*| w_x + mean |dy^k d*| w_y with d* = disp / mean(disp) per image.
 
-    disp (N, 1, h, w) Tensor, image (N, C, h, w) array; w = exp(-mean_c |grad I|) when
-    ``edge_aware`` (disparity may jump where the image has an edge), else 1.
+    disp (N, 1, h, w) Tensor, image (N, C, h, w) array. ``order`` k = 1 penalises slopes
+    (monodepth2), so a plane seen at an angle pays for its depth gradient; k = 2 uses
+    the second difference d[u+1] - 2 d[u] + d[u-1], which is zero on every plane (1/Z of
+    a plane is an affine function of the pixel: walls, floor and ceiling cost nothing).
+    w = exp(-mean_c |grad I|) when ``edge_aware`` (disparity may bend where the image has
+    an edge; for k = 2 the product of the two neighbouring weights), else 1.
     """
+    if order not in (1, 2):
+        raise ValueError(f"smoothness_loss: order must be 1 or 2; got {order}")
     disp = ag.as_tensor(disp)
     a = slice(None)
     d = disp * (1.0 / (ag.mean(disp, axis=(2, 3), keepdims=True) + 1e-7))
-    dx = ag.abs(crop(d, (a, a, a, slice(1, None))) - crop(d, (a, a, a, slice(0, -1))))
-    dy = ag.abs(crop(d, (a, a, slice(1, None))) - crop(d, (a, a, slice(0, -1))))
+
+    def diff(x, axis):                       # first difference along axis 2 or 3
+        hi = [a, a, a, a]
+        lo = [a, a, a, a]
+        hi[axis], lo[axis] = slice(1, None), slice(0, -1)
+        return crop(x, tuple(hi)) - crop(x, tuple(lo))
+
+    dx, dy = diff(d, 3), diff(d, 2)
+    if order == 2:
+        dx, dy = diff(dx, 3), diff(dy, 2)
+    dx, dy = ag.abs(dx), ag.abs(dy)
     if edge_aware:
         image = np.asarray(image, dtype=disp.dtype)
         wx = np.exp(-np.abs(np.diff(image, axis=3)).mean(axis=1, keepdims=True))
         wy = np.exp(-np.abs(np.diff(image, axis=2)).mean(axis=1, keepdims=True))
+        if order == 2:
+            wx, wy = wx[..., 1:] * wx[..., :-1], wy[..., 1:, :] * wy[..., :-1, :]
         dx, dy = dx * wx, dy * wy
     return ag.mean(dx) + ag.mean(dy)
 
@@ -233,7 +251,8 @@ def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | N
 
     smooth = None
     for i, disp in enumerate(disps):
-        term = smoothness_loss(disp, downsample_image(target, 2 ** i), cfg.edge_aware)
+        term = smoothness_loss(disp, downsample_image(target, 2 ** i), cfg.edge_aware,
+                               cfg.smooth_order)
         term = term * (1.0 / 2 ** i)
         smooth = term if smooth is None else smooth + term
     smooth = smooth * (1.0 / n_sc)

@@ -36,7 +36,9 @@ from ..autograd.optim import Adam
 from ..io import load_npz, save_npz
 from ..nets.dispnet import DispNet
 from ..nets.posenet import PoseNet
+from ..world.geometry import relative_transform
 from .data import FRAME_DT, SPEED, Sequence
+from .geometry import matrix_to_pose_vec
 from .losses import LossConfig, view_synthesis_loss
 
 
@@ -45,6 +47,7 @@ class TrainConfig:
     iterations: int = 3000          # paper: 30000 at 128x416; scaled to our budget
     batch_size: int = 4             # paper
     lr: float = 5e-4                # paper: 5e-5; 10x trains faster here (docs/depth.md)
+    lr_decay_at: int | None = None  # from this iteration on, lr x 0.1 (monodepth2-style step)
     seed: int = 0
     checkpoint_every: int = 250
     log_every: int = 25
@@ -58,6 +61,7 @@ class TrainConfig:
     pose_rot_scale: float | None = None      # rotation output scale (None: pose_scale)
     pose_dof: int = 6               # 6: SfMLearner; 3: planar (tx, tz, yaw)
     pose_init_forward: float | None = 0.8    # start PoseNet at tz = +-0.8 m (forward flight)
+    gt_pose: bool = False           # ablation: warp with the GT relative poses, not PoseNet's
     loss: LossConfig = field(default_factory=LossConfig)
 
     def to_dict(self) -> dict:
@@ -121,12 +125,34 @@ class Trainer:
             # cx = (W - 1) / 2), seen in a mirrored world.
             target = np.where(flip[:, None, None, None], target[..., ::-1], target)
             sources = [np.where(flip[:, None, None, None], s[..., ::-1], s) for s in sources]
+        self._last = (idx, flip if self.cfg.flip else np.zeros(len(idx), bool))
         return np.ascontiguousarray(target), [np.ascontiguousarray(s) for s in sources], K
+
+    def gt_pose_vectors(self, idx, flip) -> np.ndarray:
+        """Ablation only: the GT T_{t->s} of targets ``idx`` as (B, 2, 6) pose vectors,
+        mirrored where the triplet was flipped (M T M with M = diag(-1, 1, 1, 1))."""
+        if self.seq.pose is None:
+            raise ValueError("train-depth: gt_pose needs a sequence with GT poses")
+        M = np.diag([-1.0, 1.0, 1.0, 1.0])
+        out = []
+        for offset in (-1, 1):
+            T = relative_transform(self.seq.pose[idx], self.seq.pose[idx + offset])
+            T = np.where(flip[:, None, None], M @ T @ M, T)
+            out.append(matrix_to_pose_vec(T))
+        return np.stack(out, 1).astype(np.float32)
+
+    def current_lr(self) -> float:
+        """The learning rate of the next step: lr, x 0.1 from ``lr_decay_at`` on."""
+        decay = self.cfg.lr_decay_at is not None and self.iteration >= self.cfg.lr_decay_at
+        return self.cfg.lr * (0.1 if decay else 1.0)
 
     def step(self) -> dict:
         target, sources, K = self.sample_batch()
         disps = self.disp(target)
-        poses = self.pose(target, sources)
+        if self.cfg.gt_pose:
+            poses = ag.Tensor(self.gt_pose_vectors(*self._last))
+        else:
+            poses = self.pose(target, sources)
         for name, t in [("disparity", d) for d in disps] + [("pose", poses)]:
             if not np.isfinite(t.data).all():
                 raise FloatingPointError(
@@ -140,6 +166,7 @@ class Trainer:
                 f"(photo {info['photo']}, smooth {info['smooth']}); try a smaller --lr")
         self.opt.zero_grad()
         loss.backward()
+        self.opt.lr = self.current_lr()
         self.opt.step()
         self.iteration += 1
         info["loss"] = value
@@ -197,7 +224,7 @@ class Trainer:
         saved = TrainConfig.from_dict(meta["config"])
         for key in ("seed", "batch_size", "encoder", "decoder", "n_scales", "lr", "loss",
                     "init_disp", "pose_scale", "pose_head_gain", "pose_dof", "pose_init_forward",
-                    "pose_rot_scale"):
+                    "pose_rot_scale", "gt_pose"):
             if getattr(saved, key) != getattr(self.cfg, key):
                 raise ValueError(f"resume: the checkpoint {str(path)!r} was made with {key} = "
                                  f"{getattr(saved, key)!r}, this run asks {getattr(self.cfg, key)!r}")

@@ -95,15 +95,17 @@ def _panel_walls(builder, rng, outline, make_app, panel=(3.0, 6.0)):
 
 def _basic(rng, seed, size, n_obstacles, pillar_radius, box_size, min_gap, wall_margin,
            altitude, ceiling, start_clearance, start_free_ahead):
-    floor = make_appearance((0.42, 0.40, 0.36), (0.62, 0.58, 0.50), su=1.0, sv=1.0,
-                            w_block=0.6, noise_scale=0.7, offset=rng.integers(0, 64, 2))
-    ceil = make_appearance((0.80, 0.82, 0.86), (0.58, 0.62, 0.70), su=1.2, sv=1.2,
+    floor = make_appearance((0.30, 0.28, 0.25), (0.66, 0.62, 0.55), su=1.0, sv=1.0,
+                            w_block=0.75, noise_scale=0.7, offset=rng.integers(0, 64, 2))
+    ceil = make_appearance((0.86, 0.88, 0.92), (0.50, 0.55, 0.62), su=1.2, sv=1.2,
                            w_block=0.7, noise_scale=1.5, offset=rng.integers(0, 64, 2), gain=0.9)
     b = SceneBuilder(floor, ceil)
     lx, ly = _uniform(rng, size), _uniform(rng, size)
     arena = _rect(0, 0, lx, ly)
     _panel_walls(b, rng, arena, lambda: b.add_appearance(random_appearance(
-        rng, hue_range=(0.05, 0.15), sat=(0.1, 0.3), val=(0.55, 0.8))))
+        rng, hue_range=(0.05, 0.15), sat=(0.1, 0.3), val=(0.55, 0.8), size=(0.6, 1.2))))
+    # (arena walls are seen from afar: larger cells keep their texture above the
+    # anti-aliasing fade at 10 m and more)
     # Dart throwing: 400 candidate obstacles, accepted in order unless they come within
     # min_gap of an accepted one, until n are placed.
     n, m = _integers(rng, n_obstacles), 400
@@ -177,9 +179,9 @@ def _corridor_ok(scene, centre, width):
 
 def _channel(rng, seed, radius, wobble, width, n_vertices, altitude, ceiling,
              start_clearance, start_free_ahead):
-    floor = make_appearance((0.30, 0.33, 0.30), (0.50, 0.52, 0.44), su=0.8, sv=0.8,
-                            w_block=0.3, noise_scale=0.6, offset=rng.integers(0, 64, 2))
-    ceil = make_appearance((0.70, 0.66, 0.60), (0.45, 0.42, 0.40), su=0.5, sv=3.0,
+    floor = make_appearance((0.22, 0.25, 0.22), (0.56, 0.58, 0.48), su=0.8, sv=0.8,
+                            w_block=0.6, noise_scale=0.6, offset=rng.integers(0, 64, 2))
+    ceil = make_appearance((0.76, 0.72, 0.66), (0.38, 0.35, 0.33), su=0.5, sv=3.0,
                            w_block=0.8, noise_scale=1.0, offset=rng.integers(0, 64, 2), gain=0.85)
 
     def wall_app():                       # bricks and concrete: warm, low saturation
@@ -248,14 +250,14 @@ def _has_narrow_u_turn(outline) -> bool:
 
 def _corners(rng, seed, grid, n_cells, cell, width, altitude, ceiling, start_clearance,
              start_free_ahead):
-    floor = make_appearance((0.25, 0.30, 0.36), (0.45, 0.50, 0.58), su=0.6, sv=0.6,
+    floor = make_appearance((0.18, 0.23, 0.28), (0.50, 0.56, 0.64), su=0.6, sv=0.6,
                             w_block=0.8, noise_scale=0.9, offset=rng.integers(0, 64, 2))
-    ceil = make_appearance((0.85, 0.85, 0.80), (0.60, 0.60, 0.55), su=1.5, sv=0.5,
+    ceil = make_appearance((0.88, 0.88, 0.82), (0.50, 0.50, 0.46), su=1.5, sv=0.5,
                            w_block=0.75, noise_scale=1.2, offset=rng.integers(0, 64, 2), gain=0.85)
 
     def wall_app():                       # ceramic tiles: cool hues, square cells
         c0 = hsv_to_rgb(rng.uniform(0.45, 0.75), rng.uniform(0.3, 0.7), rng.uniform(0.55, 0.9))
-        c1 = hsv_to_rgb(rng.uniform(0.45, 0.75), rng.uniform(0.1, 0.4), rng.uniform(0.3, 0.95))
+        c1 = hsv_to_rgb(rng.uniform(0.45, 0.75), rng.uniform(0.1, 0.4), rng.uniform(0.15, 0.4))
         su = rng.uniform(0.3, 0.5)
         return make_appearance(c0, c1, su=su, sv=su, w_block=rng.uniform(0.6, 0.9),
                                noise_scale=rng.uniform(0.5, 1.0),
@@ -289,9 +291,9 @@ def _corners(rng, seed, grid, n_cells, cell, width, altitude, ceiling, start_cle
 
 def _intersections(rng, seed, n_blocks, block_size, street, altitude, ceiling,
                    start_clearance, start_free_ahead):
-    floor = make_appearance((0.22, 0.22, 0.24), (0.40, 0.40, 0.40), su=2.0, sv=0.5,
+    floor = make_appearance((0.16, 0.16, 0.18), (0.48, 0.48, 0.48), su=2.0, sv=0.5,
                             w_block=0.5, noise_scale=0.5, offset=rng.integers(0, 64, 2))
-    ceil = make_appearance((0.62, 0.72, 0.85), (0.85, 0.88, 0.92), su=2.0, sv=2.0,
+    ceil = make_appearance((0.50, 0.62, 0.82), (0.92, 0.94, 0.96), su=2.0, sv=2.0,
                            w_block=0.2, noise_scale=2.0, offset=rng.integers(0, 64, 2))
 
     def facade():                         # windows: tall cells, strong contrast
