@@ -63,6 +63,31 @@ def test_make_scene_errors():
         make_scene("basic", 1.5)
 
 
+@pytest.mark.parametrize("name", ["channel", "intersections", "corners"])
+def test_transfer_worlds_have_pillars_that_leave_a_way_through(name):
+    """The transfer corridors and streets hold pillars (so flying down the middle fails),
+    and beside each there is room to pass: some point 1 m from its surface keeps >= 1 m
+    from everything. ``pillar_spacing=(0, 0)`` gives the empty corridors."""
+    ring = np.stack([np.cos(np.linspace(0, 2 * np.pi, 72)), np.sin(np.linspace(0, 2 * np.pi, 72))], 1)
+    for seed in range(5):
+        scene = make_scene(name, seed)
+        assert len(scene.circle_radii) >= 2
+        assert len(make_scene(name, seed, pillar_spacing=(0.0, 0.0)).circle_radii) == 0
+        for c, r in zip(scene.circle_centres, scene.circle_radii):
+            clearance = nearest_distance(scene, c + (r + 1.0) * ring)
+            assert clearance.max() >= 1.0, (name, seed, c, r)
+
+
+def test_textures_carry_contrast():
+    """Every random appearance has an accent at least 0.15 darker or lighter than its
+    base (view synthesis, SSIM and edge-aware smoothness need visible texture)."""
+    from minid3rqn.world.textures import C0, C1, random_appearance
+    rng = np.random.default_rng(0)
+    rows = np.stack([random_appearance(rng) for _ in range(300)])
+    brightness = lambda c: c.max(axis=-1)            # HSV value
+    assert np.all(np.abs(brightness(rows[:, C0]) - brightness(rows[:, C1])) >= 0.15)
+
+
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_scene_determinism(name):
     a, b, c = make_scene(name, 11), make_scene(name, 11), make_scene(name, 12)

@@ -26,18 +26,26 @@ from .textures import (LATTICE_SIZE, hsv_to_rgb, make_appearance, random_appeara
 
 SCENARIOS = ("basic", "channel", "intersections", "corners")
 
+# Pillars inside the corridors and streets of the transfer scenarios: one every
+# ``pillar_spacing`` metres along the centre line, ``pillar_offset`` metres to a random
+# side of it, so that flying down the middle hits them and the wide side stays open
+# (>= 2 m free for a 4.2 m corridor). ``pillar_spacing=(0, 0)`` gives empty corridors.
+PILLARS = dict(pillar_radius=(0.25, 0.45), pillar_offset=(0.5, 1.0),
+               pillar_spacing=(8.0, 12.0))
+
 DEFAULTS = {
     "basic": dict(size=(22.0, 26.0), n_obstacles=(11, 15), pillar_radius=(0.25, 0.8),
                   box_size=(0.6, 2.6), min_gap=3.0, wall_margin=3.0, altitude=1.0,
                   ceiling=3.0, start_clearance=1.5, start_free_ahead=4.0),
     "channel": dict(radius=(10.0, 12.0), wobble=(0.12, 0.22), width=(4.2, 5.0),
                     n_vertices=28, altitude=1.0, ceiling=3.0, start_clearance=1.4,
-                    start_free_ahead=4.0),
+                    start_free_ahead=4.0, **PILLARS),
     "intersections": dict(n_blocks=(3, 3), block_size=(4.0, 6.5), street=(4.6, 5.6),
                           altitude=1.0, ceiling=3.0, start_clearance=1.5,
-                          start_free_ahead=4.0),
+                          start_free_ahead=4.0, **PILLARS),
     "corners": dict(grid=(5, 5), n_cells=(9, 14), cell=7.0, width=(4.6, 5.2),
-                    altitude=1.0, ceiling=3.0, start_clearance=1.5, start_free_ahead=4.0),
+                    altitude=1.0, ceiling=3.0, start_clearance=1.5, start_free_ahead=4.0,
+                    **PILLARS),
 }
 
 
@@ -160,25 +168,75 @@ def _offset_loop(centre, half_width):
 
 
 def _corridor_scene(rng, seed, name, centre, width, wall_apps, floor, ceil, altitude,
-                    ceiling, start_clearance, start_free_ahead, panel):
+                    ceiling, start_clearance, start_free_ahead, panel, pillars=()):
     b = SceneBuilder(floor, ceil)
     inner, outer = _offset_loop(centre, 0.5 * width)
     _panel_walls(b, rng, outer, lambda: b.add_appearance(wall_apps()), panel)
     _panel_walls(b, rng, inner, lambda: b.add_appearance(wall_apps()), panel)
+    for xy, radius, app in pillars:
+        b.add_circle(xy, radius, _round_circle(b, b.add_appearance(app), radius))
     return b.build(name, seed, altitude, ceiling, outer, (inner,), start_clearance,
                    start_free_ahead)
 
 
+def _pillar_appearance(rng):
+    """Pillars of the transfer worlds: saturated, any hue (posts, bollards, trees)."""
+    return random_appearance(rng, sat=(0.5, 0.9), val=(0.5, 0.9), size=(0.15, 0.3))
+
+
+def _sharp_turns(loop, degrees: float = 30.0) -> np.ndarray:
+    """Vertices of a closed polyline where its direction turns by more than ``degrees``."""
+    d_in = loop - np.roll(loop, 1, axis=0)
+    d_out = np.roll(loop, -1, axis=0) - loop
+    cos = np.sum(d_in * d_out, 1) / (np.linalg.norm(d_in, axis=1) * np.linalg.norm(d_out, axis=1))
+    return loop[cos < np.cos(np.radians(degrees))]
+
+
+def _pillars_along(rng, path, closed, pillar_radius, pillar_offset, pillar_spacing,
+                   keep_out=np.zeros((0, 2)), keep_out_radius=5.0):
+    """Pillars along a polyline ``path`` (P, 2): [(centre, radius, appearance), ...].
+
+    Every ``pillar_spacing`` metres of arc length (drawn afresh each time), a pillar
+    whose centre sits ``pillar_offset`` metres to a random side of the line, unless it
+    falls within ``keep_out_radius`` of a ``keep_out`` point (sharp turns and crossings:
+    the drone, which turns on a 4 m radius, needs the whole width there).
+    """
+    if pillar_spacing[1] <= 0:
+        return []
+    pts = np.concatenate([path, path[:1]]) if closed else path
+    seg = np.diff(pts, axis=0)
+    length = np.linalg.norm(seg, axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(length)])
+    out, at = [], _uniform(rng, pillar_spacing) * rng.uniform(0.3, 1.0)
+    end = arc[-1] - (0.5 * pillar_spacing[0] if closed else 1.0)
+    while at < end:
+        k = int(np.searchsorted(arc, at, side="right") - 1)
+        direction = seg[k] / length[k]
+        normal = np.array([-direction[1], direction[0]])
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        xy = pts[k] + (at - arc[k]) * direction + side * _uniform(rng, pillar_offset) * normal
+        radius, app = _uniform(rng, pillar_radius), _pillar_appearance(rng)
+        if not np.any(np.linalg.norm(keep_out - xy, axis=1) < keep_out_radius):
+            out.append((xy, radius, app))
+        at += _uniform(rng, pillar_spacing)
+    return out
+
+
 def _corridor_ok(scene, centre, width):
     """The corridor is clean iff every centre-line point keeps ~half the width of
-    clearance (walls neither cross nor pinch)."""
+    clearance from the walls (walls neither cross nor pinch; pillars do not count)."""
     t = np.linspace(0, 1, 8, endpoint=False)[None, :, None]
     pts = (centre[:, None, :] * (1 - t) + np.roll(centre, -1, axis=0)[:, None, :] * t)
-    return bool(nearest_distance(scene, pts.reshape(-1, 2)).min() >= 0.42 * width)
+    pts = pts.reshape(-1, 1, 2)
+    a, b = scene.wall_a[None], scene.wall_b[None]             # (1, S, 2)
+    ab = b - a
+    u = np.clip(np.sum((pts - a) * ab, -1) / np.sum(ab * ab, -1), 0.0, 1.0)
+    gap = np.linalg.norm(pts - (a + u[..., None] * ab), axis=-1)   # point-segment distance
+    return bool(gap.min() >= 0.42 * width)
 
 
 def _channel(rng, seed, radius, wobble, width, n_vertices, altitude, ceiling,
-             start_clearance, start_free_ahead):
+             start_clearance, start_free_ahead, pillar_radius, pillar_offset, pillar_spacing):
     floor = make_appearance((0.22, 0.25, 0.22), (0.56, 0.58, 0.48), su=0.8, sv=0.8,
                             w_block=0.6, noise_scale=0.6, offset=rng.integers(0, 64, 2))
     ceil = make_appearance((0.76, 0.72, 0.66), (0.38, 0.35, 0.33), su=0.5, sv=3.0,
@@ -200,9 +258,11 @@ def _channel(rng, seed, radius, wobble, width, n_vertices, altitude, ceiling,
             rr += _uniform(rng, wobble) / k * np.cos(k * theta + rng.uniform(0, 2 * np.pi))
         centre = r0 * rr[:, None] * np.stack([np.cos(theta), np.sin(theta)], 1)
         centre += rng.normal(0, 0.3, centre.shape)
+        pillars = _pillars_along(rng, centre, True, pillar_radius, pillar_offset,
+                                 pillar_spacing)           # gentle bends: no keep-out
         scene = _corridor_scene(rng, seed, "channel", centre, w, wall_app, floor, ceil,
                                 altitude, ceiling, start_clearance, start_free_ahead,
-                                (2.0, 4.0))
+                                (2.0, 4.0), pillars)
         if _corridor_ok(scene, centre, w):
             return scene
     raise RuntimeError(f"channel: no clean corridor for seed {seed}")
@@ -249,7 +309,7 @@ def _has_narrow_u_turn(outline) -> bool:
 
 
 def _corners(rng, seed, grid, n_cells, cell, width, altitude, ceiling, start_clearance,
-             start_free_ahead):
+             start_free_ahead, pillar_radius, pillar_offset, pillar_spacing):
     floor = make_appearance((0.18, 0.23, 0.28), (0.50, 0.56, 0.64), su=0.6, sv=0.6,
                             w_block=0.8, noise_scale=0.9, offset=rng.integers(0, 64, 2))
     ceil = make_appearance((0.88, 0.88, 0.82), (0.50, 0.50, 0.46), su=1.5, sv=0.5,
@@ -278,9 +338,12 @@ def _corners(rng, seed, grid, n_cells, cell, width, altitude, ceiling, start_cle
             continue
         w = _uniform(rng, width)
         centre = outline * cell
+        pillars = _pillars_along(rng, centre, True, pillar_radius, pillar_offset,
+                                 pillar_spacing, keep_out=_sharp_turns(centre),
+                                 keep_out_radius=6.5)      # right-angle turns need room
         scene = _corridor_scene(rng, seed, "corners", centre, w, wall_app, floor, ceil,
                                 altitude, ceiling, start_clearance, start_free_ahead,
-                                (2.0, 3.5))
+                                (2.0, 3.5), pillars)
         if _corridor_ok(scene, centre, w):
             return scene
     raise RuntimeError(f"corners: no clean corridor for seed {seed}")
@@ -290,7 +353,8 @@ def _corners(rng, seed, grid, n_cells, cell, width, altitude, ceiling, start_cle
 # intersections: blocks on a street grid.
 
 def _intersections(rng, seed, n_blocks, block_size, street, altitude, ceiling,
-                   start_clearance, start_free_ahead):
+                   start_clearance, start_free_ahead, pillar_radius, pillar_offset,
+                   pillar_spacing):
     floor = make_appearance((0.16, 0.16, 0.18), (0.48, 0.48, 0.48), su=2.0, sv=0.5,
                             w_block=0.5, noise_scale=0.5, offset=rng.integers(0, 64, 2))
     ceil = make_appearance((0.50, 0.62, 0.82), (0.92, 0.94, 0.96), su=2.0, sv=2.0,
@@ -329,6 +393,17 @@ def _intersections(rng, seed, n_blocks, block_size, street, altitude, ceiling,
                 ym = rng.uniform(y0 + 1.5, y1 - 1.5)
                 b.add_polygon(_rect(x0, y0, x1, ym - 0.2), b.add_appearance(facade()))
                 b.add_polygon(_rect(x0, ym + 0.2, x1, y1), b.add_appearance(facade()))
+    # Pillars along the centre line of every street (trees, lamp posts).
+    streets = [np.array([[0.5 * (xs[2 * k] + xs[2 * k + 1]), 0.0],
+                         [0.5 * (xs[2 * k] + xs[2 * k + 1]), ys[-1]]]) for k in range(nx + 1)]
+    streets += [np.array([[0.0, 0.5 * (ys[2 * k] + ys[2 * k + 1])],
+                          [xs[-1], 0.5 * (ys[2 * k] + ys[2 * k + 1])]]) for k in range(ny + 1)]
+    crossings = np.array([[0.5 * (xs[2 * i] + xs[2 * i + 1]), 0.5 * (ys[2 * j] + ys[2 * j + 1])]
+                          for i in range(nx + 1) for j in range(ny + 1)])
+    for line in streets:
+        for xy, radius, app in _pillars_along(rng, line, False, pillar_radius, pillar_offset,
+                                              pillar_spacing, crossings, 3.5):
+            b.add_circle(xy, radius, _round_circle(b, b.add_appearance(app), radius))
     return b.build("intersections", seed, altitude, ceiling, arena, (), start_clearance,
                    start_free_ahead)
 
