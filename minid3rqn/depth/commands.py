@@ -95,6 +95,9 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--eval-every", type=int, default=500,
                    help="held-out evaluation (200 frames) every N iterations, for the "
                         "learning curve curve.csv/.png (0: off)")
+    p.add_argument("--gyro-weight", type=float, default=d.loss.gyro_weight,
+                   help="weight of the gyro term: PoseNet's yaw vs the drone's rate gyro "
+                        "(0: images alone, as SfMLearner)")
     p.add_argument("--gt-pose", action="store_true",
                    help="ablation: warp with GT relative poses instead of PoseNet's")
     p.add_argument("--ssim", type=float, default=d.loss.ssim_weight,
@@ -138,7 +141,7 @@ def config_from_args(args):
     from .losses import LossConfig
     from .train import TrainConfig
     loss = LossConfig(ssim_weight=args.ssim, smooth_weight=args.smooth,
-                      smooth_order=args.smooth_order,
+                      smooth_order=args.smooth_order, gyro_weight=args.gyro_weight,
                       edge_aware=not args.no_edge_aware,
                       min_reprojection=not args.no_min_reprojection,
                       automask=not args.no_automask, speed_weight=args.speed_weight,

@@ -55,6 +55,7 @@ class LossConfig:
                                     # (downsample images: a wider basin at coarse scales)
     unmasked_weight: float = 0.0    # beta: + beta mean(e) keeps a gradient on masked pixels
     speed_weight: float = 0.1       # mu; 0 disables the known-speed term
+    gyro_weight: float = 0.0        # nu; > 0 adds the gyro term (needs ``gyro`` yaws)
     step: float = 0.8               # metres flown between frames (2 m/s x 0.4 s)
 
     def to_dict(self) -> dict:
@@ -193,7 +194,8 @@ def _photometric_term(target, sources, depth, T, K, cfg):
 
 
 
-def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | None = None):
+def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | None = None,
+                        gyro=None):
     """L = L_photo + lambda L_smooth (module docstring) for one batch.
 
     Args:
@@ -202,6 +204,8 @@ def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | N
         disps: list of disparity Tensors, scale i of shape (N, 1, H / 2^i, W / 2^i).
         poses: (N, S, 6) Tensor of pose vectors T_{t->s}.
         K: (3, 3) intrinsics of the (H, W) images.
+        gyro: (N, S) yaw (rotation about the camera's vertical axis, ry) of T_{t->s} as
+            the drone's rate gyro measures it; used when ``config.gyro_weight`` > 0.
 
     Returns:
         (loss, info): a scalar Tensor and a dict of floats (photo, smooth, mask).
@@ -265,6 +269,19 @@ def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | N
         speed = ag.mean(ag.abs(norm - cfg.step))
         loss = loss + speed * cfg.speed_weight
         info["speed"] = float(speed.data)
+    if cfg.gyro_weight > 0:
+        # The gyro term: L_gyro = mean |ry - ry_gyro|. A drone's rate gyro measures its
+        # yaw between frames; pulling PoseNet's yaw toward it is visual-inertial
+        # learning (it reads no depth). Without it PoseNet may never find the yaw's sign
+        # in the open basic world (docs/depth.md).
+        if gyro is None or np.shape(gyro) != (n, s_count):
+            raise ValueError(f"view_synthesis_loss: gyro_weight > 0 needs gyro yaws of shape "
+                             f"(N, S) = {(n, s_count)}; got "
+                             f"{None if gyro is None else np.shape(gyro)}")
+        ry = crop(poses, (slice(None), slice(None), 4))
+        gyro_term = ag.mean(ag.abs(ry - np.asarray(gyro, dtype=poses.dtype)))
+        loss = loss + gyro_term * cfg.gyro_weight
+        info["gyro"] = float(gyro_term.data)
     return loss, info
 
 

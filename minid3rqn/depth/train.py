@@ -62,6 +62,7 @@ class TrainConfig:
     pose_dof: int = 6               # 6: SfMLearner; 3: planar (tx, tz, yaw)
     pose_init_forward: float | None = 0.8    # start PoseNet at tz = +-0.8 m (forward flight)
     gt_pose: bool = False           # ablation: warp with the GT relative poses, not PoseNet's
+    gyro_noise: float = 0.005       # rad: std of the simulated gyro's yaw error per frame pair
     loss: LossConfig = field(default_factory=LossConfig)
 
     def to_dict(self) -> dict:
@@ -141,6 +142,13 @@ class Trainer:
             out.append(matrix_to_pose_vec(T))
         return np.stack(out, 1).astype(np.float32)
 
+    def gyro_yaws(self, idx, flip) -> np.ndarray:
+        """The yaw between each target and its sources as a rate gyro reports it: the true
+        yaw change (ry of T_{t->s}, mirrored with the image) plus Gaussian noise of
+        ``gyro_noise`` rad. (B, 2)."""
+        yaw = self.gt_pose_vectors(idx, flip)[..., 4]
+        return (yaw + self.rng.normal(0.0, self.cfg.gyro_noise, yaw.shape)).astype(np.float32)
+
     def current_lr(self) -> float:
         """The learning rate of the next step: lr, x 0.1 from ``lr_decay_at`` on."""
         decay = self.cfg.lr_decay_at is not None and self.iteration >= self.cfg.lr_decay_at
@@ -158,7 +166,8 @@ class Trainer:
                 raise FloatingPointError(
                     f"train-depth: the predicted {name} holds NaN/inf at iteration "
                     f"{self.iteration + 1}, so the loss would be NaN; try a smaller --lr")
-        loss, info = view_synthesis_loss(target, sources, disps, poses, K, self.cfg.loss)
+        gyro = self.gyro_yaws(*self._last) if self.cfg.loss.gyro_weight > 0 else None
+        loss, info = view_synthesis_loss(target, sources, disps, poses, K, self.cfg.loss, gyro)
         value = float(loss.data)
         if not math.isfinite(value):
             raise FloatingPointError(
