@@ -162,7 +162,9 @@ def _qnet_model():
     return QNetPolicy(QNet(QNetConfig(), rng=0), "D3RQN (untrained)"), "untrained"
 
 
-def bench_framework(repeat: int, threads: int) -> dict:
+def bench_framework(repeat: int, threads: int, n_flights: int = 1) -> dict:
+    """Render -> DispNet -> Q-net step -> world step for ``n_flights`` flights in lockstep
+    (batched over flights): frames per second (= Hz per flight when n_flights = 1)."""
     import numpy as np
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.flights import Flights
@@ -175,9 +177,9 @@ def bench_framework(repeat: int, threads: int) -> dict:
         from minid3rqn.depth.evaluate import DepthEstimator
         from minid3rqn.nets.dispnet import DispNet
         est, depth_name = DepthEstimator(DispNet()), "DispNet (default architecture, untrained)"
-    fl = Flights("basic", 1, seed=0, depth="pred", depth_estimator=est, autoreset=True)
+    fl = Flights("basic", n_flights, seed=0, depth="pred", depth_estimator=est, autoreset=True)
     fl.reset()
-    policy.reset(1)
+    policy.reset(n_flights)
 
     def one_step():
         rgb, gt = render_batch(fl.batch, fl.poses, fl.camera)
@@ -193,9 +195,10 @@ def bench_framework(repeat: int, threads: int) -> dict:
     for _ in range(n):
         one_step()
     dt = (time.perf_counter() - t) / n
-    return {"part": "framework_hz", "threads": threads, "hz": 1.0 / dt,
+    return {"part": "framework_hz", "threads": threads, "flights": n_flights,
+            "frames_per_s": n_flights / dt, "step_ms": 1000 * dt,
             "depth": depth_name, "model": model,
-            "note": "render + depth + Q step + world step, one flight, batch 1"}
+            "note": f"render + depth + Q step + world step, {n_flights} flight(s) in lockstep"}
 
 
 def bench_eval(flights: int, threads: int) -> list:
@@ -222,7 +225,8 @@ def child(args) -> None:
     if "update" in parts:
         print(json.dumps(bench_update(args.repeat, args.threads)), flush=True)
     if "framework" in parts:
-        print(json.dumps(bench_framework(args.repeat, args.threads)), flush=True)
+        for n_flights in (1, 16):
+            print(json.dumps(bench_framework(args.repeat, args.threads, n_flights)), flush=True)
     if "eval" in parts:
         for row in bench_eval(args.eval_flights, args.threads):
             print(json.dumps(row), flush=True)

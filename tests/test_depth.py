@@ -336,3 +336,25 @@ def test_gyro_term_pulls_the_yaw_and_checks_its_input(tiny_sequence):
     assert np.abs(vec[..., 4]).max() > 10 * np.abs(vec[..., [3, 5]]).max()
     trainer.cfg.loss.gyro_weight = 1.0
     trainer.run(progress=False)
+
+
+def test_gyro_yaw_mode_warps_with_the_gyro(tiny_sequence):
+    """--gyro-yaw: the pose the loss sees has the gyro's yaw (PoseNet's is unused)."""
+    import minid3rqn.depth.train as train_module
+    cfg = _tiny_cfg(1)
+    cfg.gyro_yaw, cfg.gyro_noise = True, 0.0
+    trainer = Trainer(tiny_sequence, cfg)
+    seen = {}
+    real = train_module.view_synthesis_loss
+
+    def spy(target, sources, disps, poses, K, config, gyro=None):
+        seen["poses"] = poses.data.copy()
+        return real(target, sources, disps, poses, K, config, gyro)
+
+    train_module.view_synthesis_loss = spy
+    try:
+        trainer.step()
+    finally:
+        train_module.view_synthesis_loss = real
+    truth = trainer.gt_pose_vectors(*trainer._last)[..., 4]
+    np.testing.assert_allclose(seen["poses"][..., 4], truth, atol=1e-6)

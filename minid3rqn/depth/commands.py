@@ -98,6 +98,8 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gyro-weight", type=float, default=d.loss.gyro_weight,
                    help="weight of the gyro term: PoseNet's yaw vs the drone's rate gyro "
                         "(0: images alone, as SfMLearner)")
+    p.add_argument("--gyro-yaw", action="store_true",
+                   help="warp with the (simulated, noisy) gyro's yaw in place of PoseNet's")
     p.add_argument("--gt-pose", action="store_true",
                    help="ablation: warp with GT relative poses instead of PoseNet's")
     p.add_argument("--ssim", type=float, default=d.loss.ssim_weight,
@@ -150,6 +152,7 @@ def config_from_args(args):
         else None
     return TrainConfig(iterations=args.iterations, batch_size=args.batch_size, lr=args.lr,
                        lr_decay_at=args.lr_decay_at, gt_pose=args.gt_pose,
+                       gyro_yaw=args.gyro_yaw,
                        seed=args.seed, checkpoint_every=args.checkpoint_every,
                        flip=not args.no_flip, pose_dof=args.pose_dof,
                        init_disp=args.init_disp, pose_rot_scale=args.pose_rot_scale,

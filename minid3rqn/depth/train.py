@@ -63,6 +63,7 @@ class TrainConfig:
     pose_init_forward: float | None = 0.8    # start PoseNet at tz = +-0.8 m (forward flight)
     gt_pose: bool = False           # ablation: warp with the GT relative poses, not PoseNet's
     gyro_noise: float = 0.005       # rad: std of the simulated gyro's yaw error per frame pair
+    gyro_yaw: bool = False          # warp with the gyro's yaw in place of PoseNet's
     loss: LossConfig = field(default_factory=LossConfig)
 
     def to_dict(self) -> dict:
@@ -157,16 +158,25 @@ class Trainer:
     def step(self) -> dict:
         target, sources, K = self.sample_batch()
         disps = self.disp(target)
+        use_gyro = self.cfg.loss.gyro_weight > 0 or (self.cfg.gyro_yaw and not self.cfg.gt_pose)
+        gyro = self.gyro_yaws(*self._last) if use_gyro else None
         if self.cfg.gt_pose:
             poses = ag.Tensor(self.gt_pose_vectors(*self._last))
         else:
             poses = self.pose(target, sources)
+        if self.cfg.gyro_yaw and not self.cfg.gt_pose:
+            # Visual-inertial: the rotation about the vertical axis comes from the gyro,
+            # PoseNet supplies the translation and the (small) pitch and roll.
+            keep = np.ones(6, np.float32)
+            keep[4] = 0.0
+            yaw = np.zeros(poses.shape, np.float32)
+            yaw[..., 4] = gyro
+            poses = poses * keep + yaw
         for name, t in [("disparity", d) for d in disps] + [("pose", poses)]:
             if not np.isfinite(t.data).all():
                 raise FloatingPointError(
                     f"train-depth: the predicted {name} holds NaN/inf at iteration "
                     f"{self.iteration + 1}, so the loss would be NaN; try a smaller --lr")
-        gyro = self.gyro_yaws(*self._last) if self.cfg.loss.gyro_weight > 0 else None
         loss, info = view_synthesis_loss(target, sources, disps, poses, K, self.cfg.loss, gyro)
         value = float(loss.data)
         if not math.isfinite(value):
@@ -233,7 +243,7 @@ class Trainer:
         saved = TrainConfig.from_dict(meta["config"])
         for key in ("seed", "batch_size", "encoder", "decoder", "n_scales", "lr", "loss",
                     "init_disp", "pose_scale", "pose_head_gain", "pose_dof", "pose_init_forward",
-                    "pose_rot_scale", "gt_pose"):
+                    "pose_rot_scale", "gt_pose", "gyro_yaw", "gyro_noise"):
             if getattr(saved, key) != getattr(self.cfg, key):
                 raise ValueError(f"resume: the checkpoint {str(path)!r} was made with {key} = "
                                  f"{getattr(saved, key)!r}, this run asks {getattr(self.cfg, key)!r}")
