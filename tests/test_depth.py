@@ -358,3 +358,16 @@ def test_gyro_yaw_mode_warps_with_the_gyro(tiny_sequence):
         train_module.view_synthesis_loss = real
     truth = trainer.gt_pose_vectors(*trainer._last)[..., 4]
     np.testing.assert_allclose(seen["poses"][..., 4], truth, atol=1e-6)
+
+
+def test_errors_by_depth_locates_a_biased_band():
+    from minid3rqn.depth.evaluate import errors_by_depth
+    gt = np.tile(np.linspace(1.0, 20.0, 40), (3, 8, 1))
+    pred = np.where(gt < 2.0, 1.5 * gt, gt)          # near pixels 50 % too far
+    rows = errors_by_depth(pred, gt)
+    near = rows[0]
+    assert near["signed_rel"] > 0.3 and near["abs_rel"] > 0.3
+    assert all(abs(r["signed_rel"]) < 0.05 for r in rows[1:])
+    assert sum(r["share"] for r in rows) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="pred"):
+        errors_by_depth(pred[:1], gt)

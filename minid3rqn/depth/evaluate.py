@@ -132,6 +132,29 @@ def depth_metrics(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
     return dict(zip(METRICS, np.mean(rows, axis=0).tolist()))
 
 
+DEPTH_BINS = (0.0, 2.0, 4.0, 7.0, 12.0, 50.0)
+
+
+def errors_by_depth(pred, gt, bins=DEPTH_BINS) -> list[dict]:
+    """Where the errors are: per GT-depth bin, the share of pixels, the mean abs rel and
+    the mean signed relative error (pred - gt) / gt (> 0: too far), after per-image
+    median scaling as in ``depth_metrics``. (N, H, W) inputs."""
+    pred = np.asarray(pred, dtype=np.float64)
+    gt = np.asarray(gt, dtype=np.float64)
+    if pred.shape != gt.shape:
+        raise ValueError(f"errors_by_depth: pred {pred.shape} and gt {gt.shape} differ")
+    ok = (gt > 0.1) & (gt < 50.0) & np.isfinite(gt)
+    scale = np.array([np.median(g[m]) / np.median(q[m]) for q, g, m in zip(pred, gt, ok)])
+    rel = (np.clip(pred * scale[:, None, None], 0.1, 50.0) - gt) / np.where(ok, gt, 1.0)
+    out = []
+    for lo, hi in zip(bins[:-1], bins[1:]):
+        m = ok & (gt >= lo) & (gt < hi)
+        out.append({"from_m": lo, "to_m": hi, "share": float(m.sum() / ok.sum()),
+                    "abs_rel": float(np.abs(rel[m]).mean()) if m.any() else float("nan"),
+                    "signed_rel": float(rel[m].mean()) if m.any() else float("nan")})
+    return out
+
+
 def pose_errors(posenet, seq: Sequence, max_triplets: int = 500) -> dict:
     """Translation (scale-aligned per snippet, metres) and rotation (degrees) errors."""
     from ..world.geometry import relative_transform
