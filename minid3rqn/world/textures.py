@@ -74,7 +74,13 @@ def make_appearance(c0, c1, su=0.4, sv=0.4, stagger=0.0, w_block=0.6, noise_scal
 def random_appearance(rng: np.random.Generator, hue_range=(0.0, 1.0), sat=(0.35, 0.75),
                       val=(0.45, 0.9), size=(0.25, 0.6), gain=1.0) -> np.ndarray:
     """A random appearance row: a base colour of hue in ``hue_range`` (fractions of the
-    colour wheel), a contrasting accent, and block/noise sizes drawn from ``size`` (m)."""
+    colour wheel), a contrasting accent, blocks of a size drawn from ``size`` (m) and a
+    fine grain (value noise of 8-16 cm cells).
+
+    Two scales, like real surfaces: the blocks give texture from afar, the grain up close
+    (a 40 cm block seen from 1.5 m covers a dozen pixels of flat colour, where
+    view synthesis has nothing to match); the anti-aliasing fade removes the grain beyond
+    a few metres, where it would be smaller than a pixel."""
     h = rng.uniform(*hue_range) % 1.0
     s, v = rng.uniform(*sat), rng.uniform(*val)
     c0 = hsv_to_rgb(h, s, v)
@@ -90,7 +96,7 @@ def random_appearance(rng: np.random.Generator, hue_range=(0.0, 1.0), sat=(0.35,
     sv = {0: su, 1: su * 0.5, 2: 4.0, 3: su * 0.6}[int(kind)]
     su = {0: su, 1: su, 2: su * 0.6, 3: 4.0}[int(kind)]
     return make_appearance(c0, c1, su=su, sv=sv, stagger=0.5 if kind == 1 else 0.0,
-                           w_block=rng.uniform(0.6, 0.9), noise_scale=rng.uniform(0.5, 1.2),
+                           w_block=rng.uniform(0.5, 0.7), noise_scale=rng.uniform(0.08, 0.16),
                            offset=rng.integers(0, LATTICE_SIZE, 2), gain=gain)
 
 
@@ -167,6 +173,63 @@ def fade(q, footprint):
     return a_b * q[D_WB], a_n * q[D_WN]
 
 
+# The lattice and the noise image minus 1/2 (the pattern reads B - 1/2 and N - 1/2); the
+# float32 subtraction done once per texel gives the same values as doing it per pixel.
+_LATTICE_CENTRED = _LATTICE_FLAT - np.float32(0.5)
+_NOISE_CENTRED = _NOISE_FLAT - np.float32(0.5)
+# Texel indices are int32 (half the memory traffic of int64): lattice coordinates stay far
+# below 2^31 for any scene smaller than 10^7 m.
+_TEXEL_MASKS = np.array([LATTICE_SIZE - 1, (1 << NOISE_BITS) - 1], np.int32).reshape(2, 1)
+_ROW_SHIFTS = np.array([LATTICE_BITS, NOISE_BITS], np.int32).reshape(2, 1)
+
+
+def texel_coords(s, h, q) -> np.ndarray:
+    """The pattern's lattice coordinates of points (s, h), before rounding down:
+    (2, 2, ...) float32 [[s / su + o_x, h / sv + o_y], [s n + no_x, h n + no_y]] with
+    n the NOISE texels per metre (row 0 blocks, row 1 noise; column 0 along s, 1 along h).
+    The block column still lacks the stagger of odd rows (``pattern_from_coords``)."""
+    s, h = np.asarray(s, np.float32), np.asarray(h, np.float32)
+    return np.stack(np.broadcast_arrays(s * q[D_INV_SU] + q[D_OX], h * q[D_INV_SV] + q[D_OY],
+                                        s * q[D_INV_NS] + q[D_NOX], h * q[D_INV_NS] + q[D_NOY])
+                    ).reshape((2, 2) + np.shape(s * h))
+
+
+def pattern_from_coords(coords: np.ndarray, amp, stagger=None) -> np.ndarray:
+    """The pattern value p in [0, 1] from the lattice coordinates of ``texel_coords``.
+
+    coords (2, 2, ...) float32, overwritten; amp (2, ...): the faded pattern weights
+    (a_b w_b, a_n w_n) of ``fade``; stagger (...) or None when every stagger is 0.
+    Block row j = floor(y_b), column i = floor(x_b + stagger (j mod 2)); the noise texel
+    is (floor(x_n), floor(y_n)) (its coordinates are positive, so truncation floors). Then
+        p = 1/2 + a_b w_b (LATTICE[j, i] - 1/2) + a_n w_n (NOISE[y_n, x_n] - 1/2),
+    both images wrapping around (indices masked to their size).
+    """
+    blocks = coords[0]
+    if stagger is None:
+        np.floor(blocks, out=blocks)
+        index = coords.astype(np.int32)                      # (2, 2, ...)
+    else:
+        x_b, y_b = blocks[0, ...], blocks[1, ...]            # views (0-d for one point)
+        np.floor(y_b, out=y_b)                               # j = floor(y_b)
+        index = coords.astype(np.int32)
+        # j mod 2 is the low bit of j (also for negative j in two's complement); the
+        # product stagger (j mod 2) is 0 or stagger, exact in float32.
+        odd = (index[0, 1, ...] & 1).astype(np.float32)
+        x_b += stagger * odd
+        np.floor(x_b, out=x_b)
+        index[0, 0, ...] = x_b                               # i = floor(x_b + stagger odd)
+    index &= _TEXEL_MASKS.reshape((2, 1) + (1,) * (index.ndim - 2))
+    index[:, 1] <<= _ROW_SHIFTS.reshape((2,) + (1,) * (index.ndim - 2))
+    flat = (index[:, 1] | index[:, 0]).astype(np.intp)       # row-major texel index
+    p = _LATTICE_CENTRED.take(flat[0])
+    p *= amp[0]                                               # a_b w_b (B - 1/2)
+    p += 0.5
+    noise = _NOISE_CENTRED.take(flat[1])
+    noise *= amp[1]                                           # a_n w_n (N - 1/2)
+    p += noise                                                # in place: fewer temporaries
+    return p
+
+
 def pattern(s, h, q) -> np.ndarray:
     """The pattern value p(s, h) in [0, 1] (module docstring).
 
@@ -174,18 +237,9 @@ def pattern(s, h, q) -> np.ndarray:
     arrays broadcastable to s: each point's derived constants, with the rows D_AMP_B and
     D_AMP_N holding the faded pattern weights a_b w_b and a_n w_n (``fade``).
     """
-    # Blocks: row j = floor(h / sv), column i = floor(s / su + stagger (j mod 2)).
-    j = np.floor(h * q[D_INV_SV] + q[D_OY]).astype(np.int32)
-    odd = (j & 1).astype(s.dtype)
-    i = np.floor(s * q[D_INV_SU] + q[D_OX] + q[D_STAGGER] * odd).astype(np.int32)
-    m = LATTICE_SIZE - 1
-    block = _LATTICE_FLAT.take(((j & m) << LATTICE_BITS) | (i & m))
-    # Smooth value noise, read from the pre-interpolated NOISE image.
-    mn = (1 << NOISE_BITS) - 1
-    ni = (s * q[D_INV_NS] + q[D_NOX]).astype(np.int32)       # = floor: the offsets keep
-    nj = (h * q[D_INV_NS] + q[D_NOY]).astype(np.int32)       # these coordinates positive
-    noise = _NOISE_FLAT.take(((nj & mn) << NOISE_BITS) | (ni & mn))
-    return 0.5 + q[D_AMP_B] * (block - 0.5) + q[D_AMP_N] * (noise - 0.5)
+    stagger = np.broadcast_to(q[D_STAGGER], np.shape(s * h)).astype(np.float32)
+    return pattern_from_coords(texel_coords(s, h, q), np.stack(np.broadcast_arrays(
+        q[D_AMP_B], q[D_AMP_N])).astype(np.float32), stagger)
 
 
 def wall_shade(n_dot_l) -> np.ndarray:
@@ -196,4 +250,4 @@ def wall_shade(n_dot_l) -> np.ndarray:
 
 __all__ = ["N_PARAMS", "N_DERIVED", "FLOOR_ID", "CEILING_ID", "LATTICE", "NOISE", "LIGHT",
            "make_appearance", "random_appearance", "hsv_to_rgb", "derived_table", "fade",
-           "pattern", "wall_shade"]
+           "pattern", "texel_coords", "pattern_from_coords", "wall_shade"]
