@@ -56,7 +56,7 @@ def _train_agent(spec: str, out: Path, seed: int, budget: dict, train_depth: str
     argv = ["--variant", variant, "--seed", str(seed), "--steps", str(budget["steps"]),
             "--learning-starts", str(min(5000, budget["steps"] // 6)),
             "--eps-decay", str(budget["steps"] * 5 // 6), "--replay", "100000",
-            "--updates-per-step", "1.0", "--depth", train_depth]
+            "--updates-per-step", "4.0", "--depth", train_depth]
     if stack:
         argv += ["--stack", stack]
     args = p.parse_args(argv)
