@@ -371,3 +371,13 @@ def test_errors_by_depth_locates_a_biased_band():
     assert sum(r["share"] for r in rows) == pytest.approx(1.0)
     with pytest.raises(ValueError, match="pred"):
         errors_by_depth(pred[:1], gt)
+
+
+def test_collect_stops_when_the_remainder_cannot_make_a_triplet():
+    """A flight that ends early can leave 1-2 frames to collect; no flight that short can
+    hold a triplet, so collect stops there instead of trying fresh worlds for ever."""
+    from minid3rqn.world import Camera
+    data = collect("channel", n_frames=8, frames_per_flight=3, seed=1000, progress=False,
+                   camera=Camera(8, 16, 90.0))
+    assert 6 <= len(data["rgb"]) <= 8
+    assert np.all(np.bincount(data["flight"]) >= 3)

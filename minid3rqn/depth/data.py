@@ -106,7 +106,9 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
     """Fly scripted flights in fresh scenes of ``scenario`` until ``n_frames`` frames.
 
     Flight f flies in ``make_scene(scenario, seed=seed * 100003 + f)``; flights shorter
-    than 3 frames (no triplet) are dropped. Returns the arrays of a sequence file.
+    than 3 frames (no triplet) are dropped, so when the last 1-2 frames cannot make a
+    flight of their own the sequence ends up to 2 frames short of ``n_frames``. Returns
+    the arrays of a sequence file.
     """
     from ..world.camera import Camera
     from ..world.scenarios import make_scene
@@ -122,7 +124,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=n_frames, desc=f"collect {scenario}", unit="frame")
-    while total < n_frames:
+    while n_frames - total >= 3:        # a last flight of 1-2 frames would hold no triplet
         scene = make_scene(scenario, seed=seed * 100003 + f)
         poses = fly(scene, min(frames_per_flight, n_frames - total), rng)
         f += 1
