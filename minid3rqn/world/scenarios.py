@@ -227,11 +227,11 @@ def _corridor_ok(scene, centre, width):
     clearance from the walls (walls neither cross nor pinch; pillars do not count)."""
     t = np.linspace(0, 1, 8, endpoint=False)[None, :, None]
     pts = (centre[:, None, :] * (1 - t) + np.roll(centre, -1, axis=0)[:, None, :] * t)
+    from .distance import _segment_distance
     pts = pts.reshape(-1, 1, 2)
     a, b = scene.wall_a[None], scene.wall_b[None]             # (1, S, 2)
-    ab = b - a
-    u = np.clip(np.sum((pts - a) * ab, -1) / np.sum(ab * ab, -1), 0.0, 1.0)
-    gap = np.linalg.norm(pts - (a + u[..., None] * ab), axis=-1)   # point-segment distance
+    gap, _ = _segment_distance(pts[..., 0], pts[..., 1], a[..., 0], a[..., 1],
+                               b[..., 0], b[..., 1])
     return bool(gap.min() >= 0.42 * width)
 
 
