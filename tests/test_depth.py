@@ -224,6 +224,24 @@ def test_resume_continues_exactly(tiny_sequence, tmp_path):
         Trainer(tiny_sequence, other, checkpoint=ckpt, resume=True)
 
 
+def test_fine_tune_starts_from_a_checkpoint_or_a_shipped_model_file(tiny_sequence, tmp_path):
+    """init_from takes a training checkpoint (DispNet + PoseNet) or a DepthEstimator file
+    (DispNet only; PoseNet keeps its own fresh initialisation)."""
+    ckpt = tmp_path / "ckpt.npz"
+    source = Trainer(tiny_sequence, _tiny_cfg(2), checkpoint=ckpt)
+    source.run(progress=False)
+    model = DepthEstimator(source.disp, 1.0).save(tmp_path / "model.npz")
+    fresh_pose = Trainer(tiny_sequence, _tiny_cfg(2)).pose
+    for path, pose_from in ((ckpt, source.pose), (model, fresh_pose)):
+        tuned = Trainer(tiny_sequence, _tiny_cfg(2))
+        tuned.init_from(path)
+        for a, b in zip(tuned.disp.parameters(), source.disp.parameters()):
+            np.testing.assert_array_equal(a.data, b.data)
+        for a, b in zip(tuned.pose.parameters(), pose_from.parameters()):
+            np.testing.assert_array_equal(a.data, b.data)
+        assert tuned.iteration == 0
+
+
 def test_nan_loss_names_the_iteration(tiny_sequence):
     trainer = Trainer(tiny_sequence, _tiny_cfg(3))
     trainer.disp.heads[0].bias.data[:] = np.nan

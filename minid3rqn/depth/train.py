@@ -230,13 +230,20 @@ class Trainer:
         return save_npz(path, arrays, meta)
 
     def init_from(self, path) -> None:
-        """Start from another run's checkpoint weights (fine-tuning, e.g. for scenario
-        transfer); the optimizer, the sampler and the iteration count start fresh."""
+        """Start from another run's weights (fine-tuning, e.g. for scenario transfer);
+        the optimizer, the sampler and the iteration count start fresh.
+
+        ``path`` is either a training checkpoint (DispNet + PoseNet) or a depth model file
+        as shipped in ``minid3rqn/models`` (DispNet only: PoseNet then starts from its own
+        initialisation, at the known forward motion)."""
         arrays, _ = load_npz(path)
         pick = lambda prefix: {k[len(prefix):]: v for k, v in arrays.items()
                                if k.startswith(prefix)}
-        self.disp.load_state_dict(pick("disp."))
-        self.pose.load_state_dict(pick("pose."))
+        if any(k.startswith("disp.") for k in arrays):
+            self.disp.load_state_dict(pick("disp."))
+            self.pose.load_state_dict(pick("pose."))
+        else:  # a DepthEstimator file: the DispNet's weights under their own names
+            self.disp.load_state_dict({k: v for k, v in arrays.items() if "." in k})
 
     def load_checkpoint(self, path) -> None:
         arrays, meta = load_npz(path)
