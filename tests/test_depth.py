@@ -399,3 +399,24 @@ def test_collect_stops_when_the_remainder_cannot_make_a_triplet():
                    camera=Camera(8, 16, 90.0))
     assert 6 <= len(data["rgb"]) <= 8
     assert np.all(np.bincount(data["flight"]) >= 3)
+
+
+# -- the shipped depth models -----------------------------------------------------------------
+MODELS = __import__("pathlib").Path(__file__).resolve().parent.parent / "minid3rqn" / "models"
+
+
+@pytest.mark.parametrize("scenario", ["basic", "channel", "intersections", "corners"])
+def test_shipped_depth_models_load_and_predict_metric_depth(scenario):
+    """Each shipped DispNet has its JSON (command, seed, results) and predicts depth in
+    metres on frames of its own scenario: median within a factor 1.5 of the truth."""
+    path = MODELS / f"depth_{scenario}.npz"
+    if not path.exists():
+        pytest.skip(f"no shipped depth model for {scenario}")
+    meta = json.loads(path.with_suffix(".json").read_text())
+    assert {"command", "seed", "results"} <= set(meta) and scenario in meta["command"]
+    est = DepthEstimator.load(path)
+    data = collect(scenario, n_frames=6, frames_per_flight=6, seed=11, progress=False)
+    depth = est.predict(data["rgb"])
+    assert depth.shape == data["depth"].shape and np.isfinite(depth).all() and depth.min() > 0
+    ratio = np.median(depth) / np.median(data["depth"])
+    assert 1 / 1.5 < ratio < 1.5
