@@ -1,7 +1,8 @@
 """``python -m minid3rqn reproduce``: Tables 5 and 6 end to end.
 
-    1. depth: train a DispNet per scenario (basic, channel, intersections, corners),
-       unless ``--skip-depth`` (then the shipped ``models/depth_<scenario>.npz``);
+    1. depth: train a DispNet on basic, then fine-tune it in channel, intersections and
+       corners (the shipped recipe), unless ``--skip-depth`` (then the shipped
+       ``models/depth_<scenario>.npz``);
     2. Table 5: train the Q-family on ``basic`` (same budget and seed for every model:
        D3RQN, DDRQN, D3QN, DDQN, and the non-recurrent pair with 5 stacked frames);
        evaluate them with Straight, Random, Reactive and the Oracle on fresh worlds;
@@ -36,14 +37,27 @@ FULL = dict(steps=60_000, flights=2000, depth_frames=5000, depth_iterations=None
 QUICK = dict(steps=3_000, flights=200, depth_frames=600, depth_iterations=300)
 
 
-def _train_depth(scenario: str, out: Path, seed: int, budget: dict) -> Path:
+# The shipped depth recipe (docs/depth.md, sections 5 and 7): basic from scratch with the
+# simulated gyro's yaw, heads starting far (10 m), the soft auto-mask and an lr step at
+# 3/4 of the run; each transfer scenario fine-tunes the basic DispNet on its own frames.
+DEPTH_RECIPE = ["--gyro-yaw", "--init-disp", "0.1", "--unmasked-weight", "0.1"]
+DEPTH_ITERATIONS = {"basic": 6000, "transfer": 1500}
+
+
+def _train_depth(scenario: str, out: Path, seed: int, budget: dict,
+                 init_from: Path | None = None) -> Path:
     from ..depth import commands as dc
     p = argparse.ArgumentParser()
     dc.add_arguments_train_depth(p)
+    iterations = budget["depth_iterations"] or DEPTH_ITERATIONS[
+        "basic" if init_from is None else "transfer"]
     argv = ["--scenario", scenario, "--seed", str(seed), "--frames", str(budget["depth_frames"]),
-            "--dir", str(out / "depth" / scenario), "--quiet"]
-    if budget["depth_iterations"]:
-        argv += ["--iterations", str(budget["depth_iterations"])]
+            "--iterations", str(iterations), "--dir", str(out / "depth" / scenario),
+            "--resume", "--quiet", *DEPTH_RECIPE]
+    if init_from is None:
+        argv += ["--lr-decay-at", str(iterations * 3 // 4)]
+    else:
+        argv += ["--init-from", str(init_from)]
     args = p.parse_args(argv)
     dc.run_train_depth(args)
     return out / "depth" / scenario / "model.npz"
@@ -78,9 +92,12 @@ def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred"
     scenarios = ["basic"] + (list(TRANSFER) if tables in ("6", "both") else [])
     depth_models = {}
     if depth == "pred" or train_depth == "pred":
-        for sc in scenarios:
-            shipped = MODELS / f"depth_{sc}.npz"
-            depth_models[sc] = shipped if skip_depth else _train_depth(sc, out, seed, budget)
+        for sc in scenarios:             # basic first: the transfer nets start from it
+            if skip_depth:
+                depth_models[sc] = MODELS / f"depth_{sc}.npz"
+            else:
+                depth_models[sc] = _train_depth(sc, out, seed, budget,
+                                                init_from=depth_models.get("basic"))
     models = {}
     for spec in FAMILY if tables in ("5", "both") else ("d3rqn",):
         models[spec] = _train_agent(spec, out, seed, budget, train_depth,
