@@ -12,8 +12,11 @@ Measured (medians over ``--repeat`` runs after 3 warm-ups, float32, 32x104):
   Adam step. The torch side mirrors every step (``grid_sample`` with
   align_corners=True is our sampler, ``avg_pool2d`` our area downsampling) and starts
   from OUR weights, so the two losses must agree: the script checks it before timing.
-- ``infer_fps``: DispNet (finest scale only) on batches of 64 frames, no gradient;
-  ``DepthEstimator.predict`` does exactly this.
+- ``infer_fps``: DispNet (finest scale only) on batches of 64 frames, no gradient,
+  through ``DispNetInference`` (the graph-free path ``DepthEstimator.predict`` runs);
+  ``infer_fps_ours_autograd``: the same through ``DispNet.forward`` under ``no_grad``
+  (what ``predict`` ran before). ``infer_ms_b1``: one frame (batch 1, the flight loop).
+  The script checks that the two paths agree (1e-4 relative) before timing.
 
 For each thread count the script re-runs itself in a child process with
 OMP_NUM_THREADS / OPENBLAS_NUM_THREADS / MKL_NUM_THREADS set before NumPy loads, and
@@ -62,10 +65,28 @@ def _child(threads: int, repeat: int) -> dict:
         return float(loss.data)
 
     frames = rng.random((64, 3, h, w)).astype(np.float32)
+    frames_nhwc = np.ascontiguousarray(frames.transpose(0, 2, 3, 1))
+    fast = disp.inference()                  # a snapshot: build it before training steps
 
     def ours_infer():
+        fast(frames_nhwc)
+
+    def ours_infer_autograd():
         with ag.no_grad():
-            disp(frames, scales=1)
+            return disp(frames, scales=1)[0].data[:, 0]
+
+    def ours_infer_b1():
+        fast(frames_nhwc[:1])
+
+    def ours_infer_b1_autograd():
+        with ag.no_grad():
+            disp(frames[:1], scales=1)
+
+    ref = ours_infer_autograd()
+    rel = float(np.max(np.abs(fast(frames_nhwc) - ref) / ref))
+    if rel > 1e-4:
+        raise AssertionError(f"bench_depth: DispNetInference differs from the autograd "
+                             f"forward by {rel:.2g} (relative)")
 
     result = {"threads": threads}
     torch_side = _torch_side(disp, pose, target, sources, K, cfg, frames, threads)
@@ -78,11 +99,17 @@ def _child(threads: int, repeat: int) -> dict:
         if abs(ours_loss - result["loss_torch"]) > 1e-4 * max(1.0, abs(ours_loss)):
             raise AssertionError(f"bench_depth: losses differ: ours {ours_loss}, torch "
                                  f"{result['loss_torch']}")
-    result["train_iter_ms_ours"] = _median_ms(ours_iter, repeat)
+    result["infer_max_rel_diff"] = rel
     result["infer_fps_ours"] = 64 / (_median_ms(ours_infer, repeat) / 1000)
+    result["infer_fps_ours_autograd"] = 64 / (_median_ms(ours_infer_autograd, repeat)
+                                              / 1000)
+    result["infer_ms_b1_ours"] = _median_ms(ours_infer_b1, 20 * repeat)
+    result["infer_ms_b1_ours_autograd"] = _median_ms(ours_infer_b1_autograd, 20 * repeat)
+    result["train_iter_ms_ours"] = _median_ms(ours_iter, repeat)
     if torch_side is not None:
         result["train_iter_ms_torch"] = _median_ms(torch_side["iter"], repeat)
         result["infer_fps_torch"] = 64 / (_median_ms(torch_side["infer"], repeat) / 1000)
+        result["infer_ms_b1_torch"] = _median_ms(torch_side["infer_b1"], 20 * repeat)
         result["train_ratio"] = result["train_iter_ms_ours"] / result["train_iter_ms_torch"]
     return result
 
@@ -249,7 +276,13 @@ def _torch_side(disp, pose, target, sources, K, cfg, frames, threads):
         with torch.no_grad():
             dn(fr, scales=1)
 
-    return {"loss": loss_value, "iter": one_iter, "infer": infer}
+    fr1 = fr[:1].clone()
+
+    def infer_b1():
+        with torch.no_grad():
+            dn(fr1, scales=1)
+
+    return {"loss": loss_value, "iter": one_iter, "infer": infer, "infer_b1": infer_b1}
 
 
 def main() -> int:

@@ -165,44 +165,92 @@ def _blocks(windows: np.ndarray):
                 yield windows[n:n + 1, r:r + step], np.s_[n:n + 1, r:r + step]
 
 
-def _im2col_block(block: np.ndarray, buf: np.ndarray) -> np.ndarray:
-    """Copy a block of windows (n, r, OW, KH, KW, C) into ``buf``; return it as the
-    (n*r*OW, KH*KW*C) cols matrix.
+def _im2col_views(block: np.ndarray, buf: np.ndarray):
+    """How a block of windows (n, r, OW, KH, KW, C) becomes the (n*r*OW, KH*KW*C) cols
+    matrix in ``buf``: ``(dst, src, cols)``, where ``np.copyto(dst, src)`` fills
+    ``cols`` (all three are views; nothing is copied here).
 
     Each copied run is contiguous in both arrays; the copy's cost is per run, so the
     memory order follows the longer run: pixel-major (a window row of KW*C floats per
     run) or, when that is short (few channels: a depth map, an RGB image),
-    tap-major (a run of OW output pixels per kernel tap and channel), returned as the
-    transpose of a (KH*KW*C, m) matrix. BLAS reads either layout.
+    tap-major (a run of OW output pixels per kernel tap and channel), the cols matrix
+    then being the transpose of a (KH*KW*C, m) matrix. BLAS reads either layout.
     """
     n, r, OW, KH, KW, C = block.shape
     m, K = n * r * OW, KH * KW * C
     if KW * C >= _SHORT_RUN:
         cols = buf[:m * K].reshape(m, K)
-        np.copyto(cols.reshape(block.shape), block)
-        return cols
+        return cols.reshape(block.shape), block, cols
     cols_t = buf[:m * K].reshape(K, m)
-    np.copyto(cols_t.reshape(KH, KW, C, n, r, OW), block.transpose(3, 4, 5, 0, 1, 2))
-    return cols_t.T
+    return (cols_t.reshape(KH, KW, C, n, r, OW), block.transpose(3, 4, 5, 0, 1, 2),
+            cols_t.T)
 
 
-def _conv_nhwc(xp: np.ndarray, kernel, stride, out_hw, wmat_t: np.ndarray) -> np.ndarray:
-    """Channels-last convolution without bias: ``y = cols @ wmat_t``, (N, OH, OW, O).
+def _im2col_block(block: np.ndarray, buf: np.ndarray) -> np.ndarray:
+    """Copy a block of windows into ``buf`` (see ``_im2col_views``); return the cols
+    matrix."""
+    dst, src, cols = _im2col_views(block, buf)
+    np.copyto(dst, src)
+    return cols
 
-    ``wmat_t`` is the weight as a (KH*KW*C, O) matrix (rows ordered like a cols row).
-    im2col + GEMM one cache-sized block of output pixels at a time.
+
+def conv2d_nhwc_plan(xp: np.ndarray, kernel, stride, out_hw, out: np.ndarray,
+                     work: np.ndarray | None = None) -> list:
+    """The schedule of ``conv2d_nhwc`` without running it: for each cache-sized block
+    of output pixels, ``(dst, src, cols, y)`` (views into ``work``, ``xp`` and ``out``)
+    meaning ``np.copyto(dst, src); np.matmul(cols, wmat_t, out=y)``.
+
+    A caller that convolves the same buffers again and again (the inference paths,
+    whose buffers are allocated once) builds it once and runs it with
+    ``run_conv_plan``: that skips re-deriving the strided views on every call, which
+    at batch 1 costs more than the arithmetic of the smaller layers.
+    ``work``: a 1-D scratch of at least ``im2col_work_size`` elements (None: a new one).
     """
     windows = _windows(xp, kernel, stride, out_hw)
-    N, OH, OW = windows.shape[:3]
-    O = wmat_t.shape[1]
-    y = np.empty((N, OH, OW, O), dtype=xp.dtype)
-    buf = None
+    O = out.shape[3]
+    plan = []
     for block, index in _blocks(windows):
-        if buf is None:                       # the first block is the largest
-            buf = np.empty(block.size, dtype=xp.dtype)
-        cols = _im2col_block(block, buf)
-        np.matmul(cols, wmat_t, out=y[index].reshape(len(cols), O))  # a view: contiguous
+        if work is None:                      # the first block is the largest
+            work = np.empty(block.size, dtype=xp.dtype)
+        dst, src, cols = _im2col_views(block, work)
+        plan.append((dst, src, cols, out[index].reshape(len(cols), O)))  # a view
+    return plan
+
+
+def run_conv_plan(plan: list, wmat_t: np.ndarray) -> None:
+    """Run a ``conv2d_nhwc_plan``: im2col one block, one GEMM, next block."""
+    for dst, src, cols, y in plan:
+        np.copyto(dst, src)
+        np.matmul(cols, wmat_t, out=y)
+
+
+def conv2d_nhwc(xp: np.ndarray, kernel, stride, out_hw, wmat_t: np.ndarray,
+                out: np.ndarray | None = None, work: np.ndarray | None = None
+                ) -> np.ndarray:
+    """Channels-last convolution without bias: ``y = cols @ wmat_t``, (N, OH, OW, O).
+
+    The convolution arithmetic itself, in one place: ``conv2d``'s forward, the
+    backward passes (``_transposed_conv``, ``conv_transpose2d``) and the graph-free
+    inference path (``nets.layers.ConvInference``) all run it (the last through
+    ``conv2d_nhwc_plan`` + ``run_conv_plan``, which is what this function does).
+
+    ``xp`` is the zero-padded input, channels-last (N, Hp, Wp, C); ``wmat_t`` the weight
+    as a (KH*KW*C, O) matrix (rows ordered like a cols row). im2col + GEMM one
+    cache-sized block of output pixels at a time. ``out`` (C-contiguous (N, OH, OW, O))
+    and ``work`` (a 1-D scratch array of at least ``im2col_work_size`` elements)
+    let a caller that runs the same shapes again and again reuse its memory.
+    """
+    N, (OH, OW), O = xp.shape[0], out_hw, wmat_t.shape[1]
+    y = np.empty((N, OH, OW, O), dtype=xp.dtype) if out is None else out
+    run_conv_plan(conv2d_nhwc_plan(xp, kernel, stride, out_hw, y, work), wmat_t)
     return y
+
+
+def im2col_work_size(xp: np.ndarray, kernel, stride, out_hw) -> int:
+    """Elements of the scratch ``work`` that ``conv2d_nhwc`` needs for this input: the
+    size of its first (largest) block of cols."""
+    block, _ = next(_blocks(_windows(xp, kernel, stride, out_hw)))
+    return block.size
 
 
 def _conv_weight_grad(xp: np.ndarray, kernel, stride, g: np.ndarray) -> np.ndarray:
@@ -263,7 +311,7 @@ def _transposed_conv(g: np.ndarray, weight: np.ndarray, stride, origin, out_hw
             if us < ue and vs < ve:
                 gp[:, us - u0:ue - u0, vs - v0:ve - v0] = g[:, us:ue, vs:ve]
             flipped = taps[:, :, ::-1, ::-1].transpose(2, 3, 0, 1).reshape(ka * kb * O, C)
-            part = _conv_nhwc(gp, (ka, kb), (1, 1), (ny, nx), flipped)
+            part = conv2d_nhwc(gp, (ka, kb), (1, 1), (ny, nx), flipped)
             if z is None:                                 # stride 1: a single phase
                 return part
             z[:, r0::sh, q0::sw] = part
@@ -308,7 +356,7 @@ def conv2d(x, weight, bias=None, stride=1, padding=0) -> Tensor:
 
     xp = _pad_nhwc(x.data, ph, ph, pw, pw)                     # (N, Hp, Wp, C)
     wmat = weight.data.transpose(0, 2, 3, 1).reshape(O, KH * KW * C)
-    y = _conv_nhwc(xp, (KH, KW), stride, (OH, OW), wmat.T)     # cols @ W^T
+    y = conv2d_nhwc(xp, (KH, KW), stride, (OH, OW), wmat.T)     # cols @ W^T
     if bias is not None:
         y += bias.data
     out = _nchw_view(y)
@@ -384,7 +432,7 @@ def conv_transpose2d(x, weight, bias=None, stride=1, padding=0, output_padding=0
         dx = dw = db = None
         if x.requires_grad:
             wmat = weight.data.transpose(0, 2, 3, 1).reshape(Ci, KH * KW * Co)
-            dx = _nchw_view(_conv_nhwc(gp, (KH, KW), stride, (H, W), wmat.T))
+            dx = _nchw_view(conv2d_nhwc(gp, (KH, KW), stride, (H, W), wmat.T))
         if weight.requires_grad:                                 # (KH*KW*Co, Ci)
             dw = _conv_weight_grad(gp, (KH, KW), stride, xh).T.reshape(Ci, KH, KW, Co)
             dw = np.ascontiguousarray(dw.transpose(0, 3, 1, 2))

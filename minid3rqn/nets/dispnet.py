@@ -14,6 +14,14 @@ Scale i has resolution (H / 2^i, W / 2^i); ``forward`` returns the list finest f
 Input: float RGB in [0, 1], (N, 3, H, W); it is normalised inside ((x - 0.45) / 0.225).
 ELU rather than ReLU everywhere: its gradient never dies, which matters with few
 iterations (monodepth2 uses ELU in its decoder for the same reason).
+
+Two ways to run it. ``DispNet.forward`` builds the autograd graph: training uses it
+(and so does anything that needs gradients). ``DispNetInference`` (``net.inference()``)
+evaluates a frozen copy of the weights at the finest scale only, with plain NumPy on
+channels-last arrays and preallocated buffers, calling the same convolution routine
+(``autograd.conv.conv2d_nhwc``); it exists because the flight loop runs the DispNet
+once per frame, and at batch 1 the graph bookkeeping cost as much as the arithmetic.
+Its output equals ``forward(x, scales=1)[0]`` (tests/test_fast_inference.py).
 """
 from __future__ import annotations
 
@@ -22,7 +30,8 @@ import numpy as np
 from .. import autograd as ag
 from ..autograd import Tensor
 from .init import as_rng
-from .layers import Conv2d
+from ..autograd.elementwise import _stable_sigmoid
+from .layers import Conv2d, ConvInference, bias_elu_, upsample_conv_phases
 from .module import Module
 
 
@@ -121,5 +130,213 @@ class DispNet(Module):
                 disps[i] = ag.sigmoid(self.heads[i](x)) * self.disp_scale + self.min_disp
         return disps[:n_out]
 
+    def inference(self, chunk: int = 8) -> "DispNetInference":
+        """A graph-free, finest-scale-only evaluator of the current weights (a snapshot)."""
+        return DispNetInference(self, chunk)
 
-__all__ = ["DispNet"]
+
+class DispNetInference:
+    """``DispNet.forward(x, scales=1)[0]`` without autograd: a snapshot for inference.
+
+    Why: training needs the graph (``DispNet.forward``); inference does not, and in the
+    flight loop (one frame per step, batch 1) the per-op overhead of the graph (Tensor
+    wrappers, argument checks, the weights re-laid out as matrices on every call,
+    NCHW <-> channels-last copies, ``np.where`` in ELU) was as large as the arithmetic.
+    This class does the same computation with the same convolution routine
+    (``ConvInference`` -> ``autograd.conv.conv2d_nhwc``), but
+
+    - keeps activations channels-last (N, H, W, C) from input to output;
+    - writes each layer's result straight into the zero-padded input buffer of the
+      layer that reads it (in the decoder: upsampled into the first channels, the
+      encoder's skip features into the last ones, so "upsample, crop, concat, pad" is
+      a few strided copies); the buffers are allocated once per batch size;
+    - applies bias + ELU in place (``bias_elu_``);
+    - computes only the finest disparity head, the one inference uses;
+    - at a decoder level without skip features and without cropping (the finest one,
+      the largest layer), runs "upsample x2, conv 3x3" as four 2x2 convolutions of
+      the small image (``upsample_conv_phases``: 4/9 of the work), and the 1-channel
+      head by contracting channels first (``ConvInference``).
+
+    The last two sum the same products in another order, so the output equals
+    ``forward`` to float round-off (about 1e-6 relative in float32), not to the bit;
+    everything else is the same arithmetic in the same order.
+
+    Large batches run ``chunk`` frames at a time, so that the working set (about
+    1 MB of buffers per frame at 32x104) stays in the CPU caches; a batch gains
+    little over single frames anyway (the GEMMs are already efficient at batch 1).
+
+    A snapshot: weights changed after construction (training) are not seen; build a
+    new one with ``net.inference()``. Not thread-safe (the buffers are shared): one
+    instance per thread.
+    """
+
+    def __init__(self, net: DispNet, chunk: int = 8):
+        self.enc_a = [ConvInference(c) for c in net.enc_a]
+        self.enc_b = [ConvInference(c) for c in net.enc_b]
+        self.dec_a = [ConvInference(c) for c in net.dec_a]
+        self.dec_b = [ConvInference(c) for c in net.dec_b]
+        # dec_b as four phase convolutions, where it applies (see _phase_split)
+        self.dec_b_phases = [self._phase_split(conv, a.out_channels)
+                             for conv, a in zip(net.dec_b, self.dec_a)]
+        self.head = ConvInference(net.heads[0])
+        self.dtype = net.heads[0].weight.dtype
+        self.disp_scale, self.min_disp = net.disp_scale, net.min_disp
+        self.chunk = max(1, int(chunk))
+        self._workspaces: dict[tuple, dict] = {}
+
+    @staticmethod
+    def _phase_split(conv: Conv2d, up_channels: int):
+        """{(p, q): ConvInference 2x2} if ``conv`` reads only upsampled features (no skip
+        channels) with a 3x3 kernel, stride 1, padding 1; else None."""
+        ok = (conv.weight.shape[1] == up_channels and conv.weight.shape[2:] == (3, 3)
+              and conv.stride in (1, (1, 1)) and conv.padding in (1, (1, 1)))
+        if not ok:
+            return None
+        bias = None if conv.bias is None else conv.bias.data
+        return {pq: ConvInference.of(w, bias) for pq, w in
+                upsample_conv_phases(conv.weight.data).items()}
+
+    # -- buffers -------------------------------------------------------------------------
+    def _workspace(self, n: int, h: int, w: int) -> dict:
+        """Every buffer a forward of ``n`` frames of h x w needs (cached for a few n), and
+        each convolution bound to its buffers (``ConvInference.bind``): a level's entry
+        ``"a"``, ``"b"`` or ``(p, q)`` is a function that computes ELU(conv + b) into
+        the level's output buffer and returns it."""
+        key = (n, h, w)
+        if key in self._workspaces:                       # most recently used goes last
+            self._workspaces[key] = self._workspaces.pop(key)
+            return self._workspaces[key]
+        if len(self._workspaces) >= 4:                    # bound the memory kept: drop
+            self._workspaces.pop(next(iter(self._workspaces)))   # the least recently used
+        dt, convs = self.dtype, []
+
+        def padded(hh, ww, c):      # every DispNet conv is 3x3 with padding 1: a border
+            return np.zeros((n, hh + 2, ww + 2, c), dt)   # of zeros, never written
+
+        def conv(level, name, layer, xp, y=None):  # output buffer now, bound below
+            if y is None:
+                oh, ow = layer.out_hw(xp.shape[1] - 2 * layer.padding[0],
+                                      xp.shape[2] - 2 * layer.padding[1])
+                y = np.empty((n, oh, ow, layer.out_channels), dt)
+            convs.append((level, name, layer, xp, y))
+            return y
+
+        x = first = padded(h, w, self.enc_a[0].in_channels)
+        enc = []
+        for lvl, conv_a in enumerate(self.enc_a):
+            level = {}
+            y = conv(level, "a", conv_a, x)
+            if self.enc_b:
+                level["xb"] = padded(*y.shape[1:])
+                y = conv(level, "b", self.enc_b[lvl], level["xb"])
+            x = level["x_next"] = padded(*y.shape[1:])    # the next conv's input
+            enc.append(level)
+        dec = []
+        levels = len(self.enc_a)
+        for j, i in enumerate(reversed(range(levels))):
+            level = {}
+            y = conv(level, "a", self.dec_a[j], x)
+            th, tw = -(-h // 2 ** i), -(-w // 2 ** i)       # ceil(h / 2^i), as forward
+            phases = self.dec_b_phases[j]
+            if phases is not None and (th, tw) == (2 * y.shape[1], 2 * y.shape[2]):
+                hh, ww = y.shape[1:3]
+                level["up"] = padded(*y.shape[1:])
+                y_phase = None                            # one output buffer, reused
+                for (p, q), layer in phases.items():      # phase (p, q)'s window
+                    window = level["up"][:, p:p + hh + 1, q:q + ww + 1]
+                    y_phase = conv(level, (p, q), layer, window, y_phase)
+            else:
+                level["xb"] = padded(th, tw, self.dec_b[j].in_channels)
+                conv(level, "b", self.dec_b[j], level["xb"])
+            x = level["x_next"] = padded(th, tw, self.dec_b[j].out_channels)
+            dec.append(level)
+        head = {}
+        z = conv(head, "z", self.head, x)                 # (n, h, w, 1)
+        work = np.empty(max(layer.work_size(xp) for _, _, layer, xp, _ in convs), dt)
+        size = max(y.size for *_, y in convs)
+        scratch, zeros = np.empty(size, dt), np.zeros(size, dt)
+        for level, name, layer, xp, y in convs:
+            run = layer.bind(xp, y, work)
+            if level is head:
+                level[name] = run
+            else:
+                level[name] = _with_bias_elu(run, layer.bias, y, _like(scratch, y),
+                                             _like(zeros, y))
+        ws = {"input": first, "enc": enc, "dec": dec, "head": head["z"], "z": z[..., 0]}
+        self._workspaces[key] = ws
+        return ws
+
+    # -- the forward pass ----------------------------------------------------------------
+    def __call__(self, rgb: np.ndarray) -> np.ndarray:
+        """rgb (N, H, W, 3) channels-last, uint8 (0..255) or float in [0, 1] ->
+        disparity (N, H, W) at the finest scale (the network's dtype)."""
+        rgb = np.asarray(rgb)
+        if rgb.ndim != 4 or rgb.shape[-1] != 3:
+            raise ValueError(f"DispNetInference: rgb must be (N, H, W, 3); got {rgb.shape}")
+        out = np.empty(rgb.shape[:3], self.dtype)
+        for k in range(0, len(rgb), self.chunk):
+            self._forward(rgb[k:k + self.chunk], out[k:k + self.chunk])
+        return out
+
+    def _forward(self, rgb: np.ndarray, out: np.ndarray) -> None:
+        n, h, w, _ = rgb.shape
+        ws = self._workspace(n, h, w)
+        dt = self.dtype
+        # The input, normalised as DispNet.forward does, into the first padded buffer.
+        x = ws["input"]
+        inner = x[:, 1:-1, 1:-1]
+        if rgb.dtype == np.uint8:                         # = astype(dt) * (1 / 255)
+            np.multiply(rgb, dt.type(1 / 255.0), out=inner)
+        else:
+            inner[...] = rgb
+        inner -= dt.type(RGB_MEAN)
+        inner *= dt.type(1.0 / RGB_STD)
+        levels, dec = len(self.enc_a), ws["dec"]
+        for lvl, level in enumerate(ws["enc"]):           # conv s2 + ELU, conv + ELU
+            y = level["a"]()
+            if "b" in level:
+                level["xb"][:, 1:-1, 1:-1] = y
+                y = level["b"]()
+            level["x_next"][:, 1:-1, 1:-1] = y            # the next conv's padded input
+            if lvl < levels - 1:         # skip features, read by decoder level lvl + 1:
+                skip_in = dec[levels - 2 - lvl]["xb"]     # the last channels of its input
+                skip_in[:, 1:-1, 1:-1, -y.shape[3]:] = y
+        for level in dec:
+            up = level["a"]()
+            x = level["x_next"]
+            th, tw = x.shape[1] - 2, x.shape[2] - 2
+            if "up" in level:                 # conv3x3(upsample(up)) as 4 phase convs
+                level["up"][:, 1:-1, 1:-1] = up
+                for p, q in ((0, 0), (0, 1), (1, 0), (1, 1)):
+                    x[:, 1 + p:1 + th:2, 1 + q:1 + tw:2] = level[p, q]()
+                continue
+            # Nearest x2 upsampling cropped to the skip's size, into the first channels
+            # of dec_b's padded input: output pixel (2u + p, 2v + q) = up[u, v].
+            xb, c = level["xb"], up.shape[3]
+            for p in (0, 1):
+                for q in (0, 1):
+                    rows, cols = len(range(p, th, 2)), len(range(q, tw, 2))
+                    xb[:, 1 + p:1 + th:2, 1 + q:1 + tw:2, :c] = up[:, :rows, :cols]
+            x[:, 1:-1, 1:-1] = level["b"]()
+        ws["head"]()                                      # the finest head only
+        z = ws["z"]                                       # (n, h, w)
+        if self.head.bias is not None:
+            z += self.head.bias[0]
+        np.multiply(_stable_sigmoid(z), dt.type(self.disp_scale), out=out)
+        out += dt.type(self.min_disp)
+
+
+def _with_bias_elu(run, bias, y, scratch, zeros):
+    """``run`` (a bound conv writing ``y``) followed by ``y <- ELU(y + bias)``."""
+    def step():
+        run()
+        return bias_elu_(y, bias, scratch, zeros)
+    return step
+
+
+def _like(buf: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The first y.size elements of the flat ``buf``, shaped like ``y``."""
+    return buf[:y.size].reshape(y.shape)
+
+
+__all__ = ["DispNet", "DispNetInference"]
