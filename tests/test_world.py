@@ -527,3 +527,53 @@ def test_depth_only_renderer_equals_full_render(height):
     only = render_depth_batch(SceneBatch(scenes), poses, cam)
     assert np.all(np.isfinite(only)) and np.all(only > 0)
     np.testing.assert_array_equal(only, depth)
+
+
+def test_cast_paths_agree(scenes):
+    """The single-pose cast, the padded few-pose cast and the flat many-pose cast give
+    the same columns, bit for bit."""
+    xn = Camera().column_rays()
+    for name in SCENARIOS:
+        scene = scenes[name]
+        poses = start_poses(scene, 6, seed=2)
+        many = cast_columns(scene.batch(), poses, xn)          # 6 poses: flat pairs
+        few = cast_columns(scene.batch(), poses[:3], xn)       # 3 poses: padded
+        for k in range(3):
+            one = cast_columns(scene.batch(), poses[k:k + 1], xn)
+            for key in ("t", "s", "shade", "cos", "app"):
+                np.testing.assert_array_equal(one[key][0], many[key][k], err_msg=key)
+                np.testing.assert_array_equal(one[key][0], few[key][k], err_msg=key)
+
+
+def test_render_cache_follows_scene_batch_set(scenes):
+    """The floor/ceiling tables cached per batch follow ``SceneBatch.set``."""
+    worlds = [scenes["basic"], scenes["channel"]]
+    poses = np.stack([start_poses(s, 1, seed=1)[0] for s in worlds])
+    batch = SceneBatch(worlds)
+    render_batch(batch, poses, Camera())                       # fills the cache
+    new = scenes["corners"]
+    batch.set(1, new)
+    poses[1] = start_poses(new, 1, seed=1)[0]
+    rgb, depth = render_batch(batch, poses, Camera())
+    rgb_ref, depth_ref = render_batch(SceneBatch([worlds[0], new]), poses, Camera())
+    np.testing.assert_array_equal(rgb, rgb_ref)
+    np.testing.assert_array_equal(depth, depth_ref)
+
+
+def test_scene_batch_subset_keeps_its_own_render_cache(scenes):
+    """A subset of a batch (the flights still flying) renders its own worlds, and
+    rendering it never leaves stale tables in the full batch's cache (or vice versa)."""
+    from minid3rqn.world.renderer import render_depth_batch
+    worlds = [scenes["basic"], scenes["channel"], scenes["corners"]]
+    poses = np.stack([start_poses(s, 1, seed=2)[0] for s in worlds])
+    batch = SceneBatch(worlds)
+    for idx in ([1], [0, 2], [0, 1, 2], [2]):
+        sub = batch.subset(idx)
+        assert sub.scenes == [worlds[k] for k in idx] and len(sub) == len(idx)
+        ref_rgb, ref_depth = render_batch(SceneBatch([worlds[k] for k in idx]), poses[idx])
+        rgb, depth = render_batch(sub, poses[idx])
+        np.testing.assert_array_equal(rgb, ref_rgb)
+        np.testing.assert_array_equal(depth, ref_depth)
+        np.testing.assert_array_equal(render_depth_batch(sub, poses[idx]), ref_depth)
+        np.testing.assert_array_equal(render_depth_batch(batch, poses),
+                                      render_batch(SceneBatch(worlds), poses)[1])

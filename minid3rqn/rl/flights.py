@@ -22,7 +22,6 @@ frame of the finished episode (the replay needs it for the bootstrap).
 """
 from __future__ import annotations
 
-import copy
 import json
 from dataclasses import dataclass
 
@@ -113,15 +112,8 @@ class Flights:
         return depth, frames.astype(np.float32), rgb
 
     def _sub_batch(self, idx) -> SceneBatch:
-        """The worlds of flights ``idx`` as a SceneBatch: rows of the full batch's arrays."""
-        if len(idx) == self.n:
-            return self.batch
-        sub = copy.copy(self.batch)
-        for name, value in vars(self.batch).items():
-            if isinstance(value, np.ndarray) and value.ndim >= 1 and len(value) == self.n:
-                setattr(sub, name, value[idx])
-        sub.scenes = [self.batch.scenes[k] for k in idx]
-        return sub
+        """The worlds of flights ``idx`` as a SceneBatch."""
+        return self.batch if len(idx) == self.n else self.batch.subset(idx)
 
     def _store(self, idx, depth, rgb):
         if self.last_depth is None:

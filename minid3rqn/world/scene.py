@@ -19,6 +19,8 @@ one NumPy expression handles all of them: padded circles and walls sit at FAR me
 """
 from __future__ import annotations
 
+import copy
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -239,6 +241,11 @@ class SceneBatch:
         wall_a, wall_b (N, S, 2)                               walls (for distances)
         poly (N, P, V, 2)                                      polygons (for distances)
         seg_ab (N, 2E, 2) both ends stacked, seg_len (N, E)    segment lengths
+        points (N, 2, 2E + C)                                  x and y rows of the
+            segment ends A, the ends B and the circle centres (the renderer turns them
+            into camera coordinates in one pass)
+        seg_consts (N, E, 3)                                   length, u0, app (float)
+        circ_r2 (N, C), circ_inf (N, C)                        R^2; 0 (inf for padding)
         apps (N, A, N_PARAMS) float32                          appearance tables
         tex (N, A, N_DERIVED) float32                          ``derived_table(apps)``
         tex_t (N_DERIVED, N A) float32                         the same, transposed
@@ -251,6 +258,7 @@ class SceneBatch:
         if not scenes or not all(isinstance(s, Scene) for s in scenes):
             raise TypeError("SceneBatch: scenes must be a non-empty sequence of Scene")
         self.scenes = scenes
+        self._cache = {}          # the renderer's per-camera constants of these worlds
         self._allocate(len(scenes), *np.max([self._sizes(s) for s in scenes], axis=0))
         for n, s in enumerate(scenes):
             self._write(n, s)
@@ -280,6 +288,10 @@ class SceneBatch:
         self.poly = np.broadcast_to(_far_polygon(V), (n, P, V, 2)).copy()
         self.seg_ab = np.zeros((n, 2 * E, 2))
         self.seg_len = np.zeros((n, E))
+        self.points = np.zeros((n, 2, 2 * E + C))
+        self.seg_consts = np.zeros((n, E, 3))
+        self.circ_r2 = np.zeros((n, C))
+        self.circ_inf = np.zeros((n, C))
         self.apps = np.zeros((n, A, N_PARAMS), np.float32)
         self.tex = np.zeros((n, A, N_DERIVED), np.float32)
         self.tex_t = np.zeros((N_DERIVED, n * A), np.float32)
@@ -310,6 +322,10 @@ class SceneBatch:
         self.poly[n, :P, V:] = scene.poly_verts[:, -1:]
         self.seg_ab[n] = np.concatenate([self.seg_a[n], self.seg_b[n]])
         self.seg_len[n] = np.hypot(*(self.seg_b[n] - self.seg_a[n]).T)
+        self.points[n] = np.concatenate([self.seg_ab[n], self.circ_c[n]]).T
+        self.seg_consts[n] = np.stack([self.seg_len[n], self.seg_u0[n], self.seg_app[n]], -1)
+        self.circ_r2[n] = self.circ_r[n] * self.circ_r[n]
+        self.circ_inf[n] = np.where(self.circ_r[n] > 0, 0.0, np.inf)
         self.apps[n] = 0.0
         self.apps[n, :A] = scene.appearances
         self.tex[n] = 0.0
@@ -318,6 +334,21 @@ class SceneBatch:
         self.altitude[n] = scene.altitude
         self.ceiling[n] = scene.ceiling
         self.scenes[n] = scene
+
+    def subset(self, idx) -> "SceneBatch":
+        """The worlds ``idx`` as a new SceneBatch sharing nothing mutable with this one:
+        rows of the per-world arrays, and an empty renderer cache (a shared cache would
+        hand one batch's per-world tables to the other)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        sub = copy.copy(self)
+        n = len(self.scenes)
+        for name, value in vars(self).items():
+            if isinstance(value, np.ndarray) and value.ndim >= 1 and len(value) == n:
+                setattr(sub, name, value[idx])
+        sub.tex_t = np.ascontiguousarray(sub.tex.reshape(-1, N_DERIVED).T)
+        sub.scenes = [self.scenes[k] for k in idx]
+        sub._cache = {}
+        return sub
 
     def set(self, n: int, scene: Scene):
         """Replace world ``n`` by ``scene``, growing the padded arrays when needed."""

@@ -213,14 +213,14 @@ def pattern_from_coords(coords: np.ndarray, amp, stagger=None) -> np.ndarray:
         np.floor(y_b, out=y_b)                               # j = floor(y_b)
         index = coords.astype(np.int32)
         # j mod 2 is the low bit of j (also for negative j in two's complement); the
-        # product stagger (j mod 2) is 0 or stagger, exact in float32.
-        odd = (index[0, 1, ...] & 1).astype(np.float32)
-        x_b += stagger * odd
+        # product stagger (j mod 2) is 0 or stagger, exact in float32 (the int 0 or 1 is
+        # converted to float32 inside the multiply).
+        x_b += np.multiply(stagger, index[0, 1, ...] & 1, dtype=np.float32)
         np.floor(x_b, out=x_b)
         index[0, 0, ...] = x_b                               # i = floor(x_b + stagger odd)
     index &= _TEXEL_MASKS.reshape((2, 1) + (1,) * (index.ndim - 2))
     index[:, 1] <<= _ROW_SHIFTS.reshape((2,) + (1,) * (index.ndim - 2))
-    flat = (index[:, 1] | index[:, 0]).astype(np.intp)       # row-major texel index
+    flat = index[:, 1] | index[:, 0]                         # row-major texel index
     p = _LATTICE_CENTRED.take(flat[0])
     p *= amp[0]                                               # a_b w_b (B - 1/2)
     p += 0.5
