@@ -391,6 +391,22 @@ def test_errors_by_depth_locates_a_biased_band():
         errors_by_depth(pred[:1], gt)
 
 
+def test_errors_by_depth_in_the_models_own_metric_scale():
+    """A prediction 20 % too far everywhere: median scaling hides it, the metric-scale
+    mode shows it in every bin; both modes agree with depth_metrics' alignment."""
+    from minid3rqn.depth.evaluate import align_to_gt, errors_by_depth
+    gt = np.tile(np.linspace(1.0, 20.0, 40), (2, 6, 1))
+    pred = 1.2 * gt
+    assert all(abs(r["signed_rel"]) < 1e-9 for r in errors_by_depth(pred, gt))
+    rows = errors_by_depth(pred, gt, median_scaling=False)
+    assert all(r["signed_rel"] == pytest.approx(0.2) for r in rows)
+    assert depth_metrics(pred, gt, median_scaling=False)["abs_rel"] == pytest.approx(0.2)
+    p, g, ok = align_to_gt(pred, gt, median_scaling=False)
+    np.testing.assert_allclose(p[ok], pred[ok])
+    with pytest.raises(ValueError, match="errors_by_depth.*same"):
+        errors_by_depth(pred[0], gt[0])
+
+
 def test_collect_stops_when_the_remainder_cannot_make_a_triplet():
     """A flight that ends early can leave 1-2 frames to collect; no flight that short can
     hold a triplet, so collect stops there instead of trying fresh worlds for ever."""

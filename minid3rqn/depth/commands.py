@@ -258,6 +258,9 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", default=None, help="write the metrics here")
     p.add_argument("--by-depth", action="store_true",
                    help="also print the errors per GT-depth bin (where the errors are)")
+    p.add_argument("--metric-scale", action="store_true",
+                   help="with --by-depth: judge the model's own metric scale (from the "
+                        "flight speed) instead of per-image median scaling")
 
 
 def run_eval_depth(args) -> int:
@@ -270,8 +273,10 @@ def run_eval_depth(args) -> int:
     results["seconds"] = round(time.time() - t0, 2)
     if args.by_depth:
         from .evaluate import errors_by_depth
-        rows = errors_by_depth(estimator.predict(test.rgb), test.depth)
-        print("GT depth (m)   share   abs rel   signed rel (> 0: too far)")
+        rows = errors_by_depth(estimator.predict(test.rgb), test.depth,
+                               median_scaling=not args.metric_scale)
+        print("GT depth (m)   share   abs rel   signed rel (> 0: too far)   "
+              + ("[the model's metric scale]" if args.metric_scale else "[median-scaled]"))
         for r in rows:
             print(f"{r['from_m']:4.0f} - {r['to_m']:<4.0f}    {r['share']:.2f}    "
                   f"{r['abs_rel']:.3f}     {r['signed_rel']:+.3f}")

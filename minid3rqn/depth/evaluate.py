@@ -144,24 +144,38 @@ class DepthEstimator:
 
 
 # -- metrics -----------------------------------------------------------------------------
+def align_to_gt(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
+                median_scaling: bool = True, name: str = "depth_metrics"):
+    """The evaluation protocol's first step, shared by every depth metric here.
+
+    (N, H, W) inputs -> ``(p, g, ok)``: float64 copies, ``ok`` the pixels with a valid GT
+    depth (min_depth < g < max_depth), and ``p`` the prediction scaled per image by
+    median(g[ok]) / median(p[ok]) (SfMLearner's protocol; skipped with
+    ``median_scaling=False``, to judge the model's own metric scale), then clipped to
+    [min_depth, max_depth].
+    """
+    p = np.asarray(pred, dtype=np.float64)
+    g = np.asarray(gt, dtype=np.float64)
+    if p.shape != g.shape or p.ndim != 3:
+        raise ValueError(f"{name}: pred {p.shape} and gt {g.shape} must be the same "
+                         f"(N, H, W) shape")
+    ok = (g > min_depth) & (g < max_depth) & np.isfinite(g)
+    if median_scaling:
+        scale = np.array([np.median(gi[m]) / np.median(pi[m]) for pi, gi, m in zip(p, g, ok)])
+        p = p * scale[:, None, None]
+    return np.clip(p, min_depth, max_depth), g, ok
+
+
 def depth_metrics(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
                   median_scaling: bool = True) -> dict:
     """The seven metrics (module docstring), averaged over images; (N, H, W) inputs."""
-    pred = np.asarray(pred, dtype=np.float64)
-    gt = np.asarray(gt, dtype=np.float64)
-    if pred.shape != gt.shape:
-        raise ValueError(f"depth_metrics: pred {pred.shape} and gt {gt.shape} differ")
+    p, g, ok = align_to_gt(pred, gt, min_depth, max_depth, median_scaling)
     rows = []
-    for p, g in zip(pred.reshape(len(pred), -1), gt.reshape(len(gt), -1)):
-        ok = (g > min_depth) & (g < max_depth) & np.isfinite(g)
-        p, g = p[ok], g[ok]
-        if median_scaling:
-            p = p * (np.median(g) / np.median(p))
-        p = np.clip(p, min_depth, max_depth)
-        ratio = np.maximum(p / g, g / p)
-        rows.append([np.mean(np.abs(p - g) / g), np.mean((p - g) ** 2 / g),
-                     np.sqrt(np.mean((p - g) ** 2)),
-                     np.sqrt(np.mean((np.log(p) - np.log(g)) ** 2)),
+    for pi, gi in ((pi[m], gi[m]) for pi, gi, m in zip(p, g, ok)):
+        ratio = np.maximum(pi / gi, gi / pi)
+        rows.append([np.mean(np.abs(pi - gi) / gi), np.mean((pi - gi) ** 2 / gi),
+                     np.sqrt(np.mean((pi - gi) ** 2)),
+                     np.sqrt(np.mean((np.log(pi) - np.log(gi)) ** 2)),
                      np.mean(ratio < 1.25), np.mean(ratio < 1.25 ** 2),
                      np.mean(ratio < 1.25 ** 3)])
     return dict(zip(METRICS, np.mean(rows, axis=0).tolist()))
@@ -170,20 +184,16 @@ def depth_metrics(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
 DEPTH_BINS = (0.0, 2.0, 4.0, 7.0, 12.0, 50.0)
 
 
-def errors_by_depth(pred, gt, bins=DEPTH_BINS) -> list[dict]:
+def errors_by_depth(pred, gt, bins=DEPTH_BINS, median_scaling: bool = True) -> list[dict]:
     """Where the errors are: per GT-depth bin, the share of pixels, the mean abs rel and
-    the mean signed relative error (pred - gt) / gt (> 0: too far), after per-image
-    median scaling as in ``depth_metrics``. (N, H, W) inputs."""
-    pred = np.asarray(pred, dtype=np.float64)
-    gt = np.asarray(gt, dtype=np.float64)
-    if pred.shape != gt.shape:
-        raise ValueError(f"errors_by_depth: pred {pred.shape} and gt {gt.shape} differ")
-    ok = (gt > 0.1) & (gt < 50.0) & np.isfinite(gt)
-    scale = np.array([np.median(g[m]) / np.median(q[m]) for q, g, m in zip(pred, gt, ok)])
-    rel = (np.clip(pred * scale[:, None, None], 0.1, 50.0) - gt) / np.where(ok, gt, 1.0)
+    the mean signed relative error (pred - gt) / gt (> 0: too far), after the same
+    alignment as ``depth_metrics`` (per-image median scaling, or with
+    ``median_scaling=False`` the model's own metric scale). (N, H, W) inputs."""
+    p, g, ok = align_to_gt(pred, gt, median_scaling=median_scaling, name="errors_by_depth")
+    rel = (p - g) / np.where(ok, g, 1.0)
     out = []
     for lo, hi in zip(bins[:-1], bins[1:]):
-        m = ok & (gt >= lo) & (gt < hi)
+        m = ok & (g >= lo) & (g < hi)
         out.append({"from_m": lo, "to_m": hi, "share": float(m.sum() / ok.sum()),
                     "abs_rel": float(np.abs(rel[m]).mean()) if m.any() else float("nan"),
                     "signed_rel": float(rel[m].mean()) if m.any() else float("nan")})
@@ -260,5 +270,5 @@ def comparison_picture(rgb, pred, gt, path, zoom: int = 3, gap: int = 3) -> Path
     return path
 
 
-__all__ = ["METRICS", "DepthEstimator", "depth_metrics", "pose_errors", "evaluate",
-           "comparison_picture"]
+__all__ = ["METRICS", "DepthEstimator", "align_to_gt", "depth_metrics", "errors_by_depth",
+           "pose_errors", "evaluate", "comparison_picture"]
