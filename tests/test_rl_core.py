@@ -149,6 +149,26 @@ def test_recurrent_state_reset_and_advanced_on_random_actions():
     np.testing.assert_allclose(pol.last_q[0], q_fresh[0], rtol=1e-5, atol=1e-6)
 
 
+def test_window_policy_acts_on_the_last_frames_of_its_own_flight():
+    """window=3: Q is the net run from a zero state over the flight's last 3 frames (or
+    fewer after a restart), never over frames of an earlier flight."""
+    cfg = QNetConfig(width=8)
+    net = Agent(cfg, AgentConfig(), rng=0).online
+    rng = np.random.default_rng(1)
+    frames = rng.random((6, 2, H, W)).astype(np.float32)       # 6 steps, 2 flights
+    pol = QNetPolicy(net, window=3)
+    pol.reset(2)
+    for t in range(6):   # flight 1 restarts at step 4
+        pol.act({"frames": frames[t]}, started=np.array([False, t == 4]))
+
+    def q_over(seq):     # (T, H, W) -> Q of the last step from a zero state
+        with ag.no_grad():
+            q, _ = net(seq[:, None, None])
+        return q.data[-1, 0]
+    np.testing.assert_allclose(pol.last_q[0], q_over(frames[3:6, 0]), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(pol.last_q[1], q_over(frames[4:6, 1]), rtol=1e-5, atol=1e-6)
+
+
 def test_frame_stacker():
     fs = FrameStacker(2, 3, (1, 1))
     fs.reset([0, 1], np.array([[[1.0]], [[5.0]]]))

@@ -137,8 +137,11 @@ def ship_model(model_path, name: str, results: dict | None = None) -> Path:
 BASELINES = ("straight", "random", "reactive", "oracle")
 
 
-def make_policy(spec: str, seed: int = 0):
-    """'straight' | 'random' | 'reactive' | 'oracle' | path to a Q-net .npz."""
+def make_policy(spec: str, seed: int = 0, window: int | None = None):
+    """'straight' | 'random' | 'reactive' | 'oracle' | path to a Q-net .npz.
+
+    ``window`` (recurrent Q-nets): act from a zero state over the last ``window`` frames
+    at every step, as in training, instead of carrying the state through the flight."""
     from ..world import ACTIONS
     from .policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy,
                            StraightPolicy)
@@ -160,6 +163,11 @@ def make_policy(spec: str, seed: int = 0):
     if pol.qnet.config.in_channels > 1:
         name += f"-stack{pol.qnet.config.in_channels}"
     pol.name = name
+    if window:
+        if not pol.qnet.recurrent:
+            raise SystemExit(f"evaluate: --window needs a recurrent Q-net; {spec!r} is {name}")
+        pol.window = int(window)
+        pol.name += f"-win{window}"
     return pol
 
 
@@ -173,6 +181,10 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth", default="gt", choices=["gt", "pred"])
     p.add_argument("--depth-model", default=None)
     p.add_argument("--chunk", type=int, default=500, help="flights stepped together")
+    p.add_argument("--window", type=int, default=None,
+                   help="recurrent Q-nets: act from a zero state over the last N frames at "
+                        "every step (as trained) instead of carrying the state through "
+                        "the flight")
     p.add_argument("--json", default=None, help="append results to this JSON-lines file")
     p.add_argument("--quiet", action="store_true")
 
@@ -181,7 +193,8 @@ def run_evaluate(args) -> int:
     from .evaluate import evaluate_policy
     est = _estimator_for(args.depth, args.depth_model, args.scenario)
     for spec in args.policies:
-        pol = make_policy(spec, args.seed)
+        pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES
+                          else None)
         res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
                               args.chunk, args.depth, est, progress=not args.quiet)
         print(res.line(), flush=True)
