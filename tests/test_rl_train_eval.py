@@ -1,4 +1,6 @@
 """Smoke runs: training, resume, evaluation, baselines, the CLI hooks and the shipped model."""
+import argparse
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -6,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from minid3rqn.rl import commands
 from minid3rqn.rl.evaluate import evaluate_policy, wilson_interval
 from minid3rqn.rl.flights import Flights, FlightsConfig
 from minid3rqn.rl.policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy,
@@ -88,8 +91,6 @@ def test_oracle_flies_the_channel():
 
 
 def test_cli_smoke(tmp_path):
-    from minid3rqn.rl import commands
-    import argparse
     p = argparse.ArgumentParser()
     commands.add_arguments_train_agent(p)
     args = p.parse_args(["--smoke", "--quiet", "--out", str(tmp_path / "run")])
@@ -122,3 +123,31 @@ def test_examples_smoke(script, tmp_path):
     out = subprocess.run([sys.executable, str(path), "--smoke", "--out", str(tmp_path)],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-2000:]
+
+
+@pytest.mark.skipif(not SHIPPED.exists(), reason="no shipped Q-net yet")
+def test_fly_main_job_smoke(tmp_path, capsys):
+    """The README's first command, small: flies the shipped models, writes the GIF, prints
+    the rate and the recorded result for the scenario from the model's JSON."""
+    p = argparse.ArgumentParser()
+    commands.add_arguments_fly(p)
+    gif = tmp_path / "fly.gif"
+    args = p.parse_args(["--flights", "2", "--steps", "4", "--seed", "1", "--gif", str(gif)])
+    assert commands.run_fly(args) == 0
+    assert gif.is_file() and gif.stat().st_size > 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["flights"] == 2 and 0 <= out["success_rate"] <= 1
+
+
+def test_recorded_result_picks_the_largest_matching_evaluation(tmp_path):
+    model = tmp_path / "m.npz"
+    rows = [{"scenario": "basic", "depth": "pred", "flights": 500, "seed": 1, "rate": 0.5,
+             "ci95": [0.4, 0.6]},
+            {"scenario": "basic", "depth": "pred", "flights": 2000, "seed": 1, "rate": 0.7,
+             "ci95": [0.6, 0.8]},
+            {"scenario": "basic", "depth": "gt", "flights": 4000, "seed": 1, "rate": 0.9,
+             "ci95": [0.8, 1.0]}]
+    model.with_suffix(".json").write_text(json.dumps({"evaluations": rows}))
+    assert commands.recorded_result(model, "basic", "pred")["rate"] == 0.7
+    assert commands.recorded_result(model, "corners", "pred") is None
+    assert commands.recorded_result(tmp_path / "none.npz", "basic", "gt") is None

@@ -239,11 +239,24 @@ def run_fly(args) -> int:
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
           f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}) on {depth} depth; GIF: "
           f"{out['gif']}", file=sys.stderr)
-    if depth == "pred":
-        print("note: 32 flights give a wide interval; over 500 flights the shipped models "
-              "reach 0.80 on predicted depth; `--depth gt` flies the Q-net on perfect "
-              "depth (docs/results.md)", file=sys.stderr)
+    recorded = recorded_result(args.model, args.scenario, depth)
+    if recorded:
+        print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
+              f"result here: {recorded['rate']:.3f} [{recorded['ci95'][0]:.3f}, "
+              f"{recorded['ci95'][1]:.3f}] over {recorded['flights']} flights (seed "
+              f"{recorded['seed']}; docs/results.md)", file=sys.stderr)
     return 0
+
+
+def recorded_result(model, scenario: str, depth: str) -> dict | None:
+    """The largest evaluation of ``scenario`` on ``depth`` depth recorded in the JSON beside
+    a model file (``evaluations``: what the shipped models' commands measured), if any."""
+    path = Path(model).with_suffix(".json")
+    if not path.is_file():
+        return None
+    rows = [r for r in json.loads(path.read_text()).get("evaluations", [])
+            if r.get("scenario") == scenario and r.get("depth") == depth]
+    return max(rows, key=lambda r: r["flights"]) if rows else None
 
 
 # -- reproduce ----------------------------------------------------------------------------
