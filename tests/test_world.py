@@ -545,6 +545,37 @@ def test_cast_paths_agree(scenes):
                 np.testing.assert_array_equal(one[key][0], few[key][k], err_msg=key)
 
 
+def test_cast_paths_agree_on_a_shared_corner():
+    """A column whose ray passes exactly through the corner two walls share meets both at
+    the same t: every cast path picks the lower segment index (in the many-pose path this
+    is the tie branch of ``_cast_many``), and circles keep losing ties to segments."""
+    from minid3rqn.world.scene import SceneBuilder
+    from minid3rqn.world.textures import make_appearance
+    builder = SceneBuilder(make_appearance((0.5, 0.5, 0.5), (0.2, 0.2, 0.2)),
+                           make_appearance((0.6, 0.6, 0.6), (0.3, 0.3, 0.3)))
+    app = builder.add_appearance(make_appearance((0.8, 0.2, 0.2), (0.3, 0.1, 0.1)))
+    # Two walls meeting at (5, 0), straight ahead of a camera at the origin facing +x,
+    # a pillar off to the side and an enclosure around everything.
+    builder.add_polyline([(5.0, -1.0), (5.0, 0.0), (6.0, 1.0)], app)
+    builder.add_circle((4.0, 1.5), 0.4, app)
+    builder.add_polyline([(-10, -10), (10, -10), (10, 10), (-10, 10)], app, closed=True)
+    scene = builder.build("corner", 0, 1.0, 3.0, [(-10, -10), (10, -10), (10, 10), (-10, 10)])
+    xn = Camera(32, 105).column_rays()                  # odd width: column 52 has x_n = 0
+    assert xn[52] == 0.0
+    poses = np.tile([0.0, 0.0, 0.0], (6, 1))
+    poses[1:, 0] -= np.arange(1, 6) * 0.5               # further back, same ray
+    many = cast_columns(scene.batch(), poses, xn)
+    few = cast_columns(scene.batch(), poses[:3], xn)
+    for k in range(3):
+        one = cast_columns(scene.batch(), poses[k:k + 1], xn)
+        assert one["t"][0, 52] == 5.0 + 0.5 * k
+        for key in ("t", "s", "shade", "cos", "app"):
+            np.testing.assert_array_equal(one[key][0], many[key][k], err_msg=key)
+            np.testing.assert_array_equal(one[key][0], few[key][k], err_msg=key)
+    # The wall (5, -1) -> (5, 0) is segment 0 and wins the tie: s at its end = its length.
+    assert np.all(many["s"][:, 52] == 1.0)
+
+
 def test_render_cache_follows_scene_batch_set(scenes):
     """The floor/ceiling tables cached per batch follow ``SceneBatch.set``."""
     worlds = [scenes["basic"], scenes["channel"]]

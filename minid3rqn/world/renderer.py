@@ -15,7 +15,7 @@ Walls (one 2D hit per column: the smallest t > 0):
         k = X_c^2 + Z_c^2 - R^2  (a hit iff the root is real and positive).
 Segments that cannot appear in the field of view (image interval outside
 [x_n(0), x_n(W-1)]) are culled first, so each column meets only the visible ones;
-circles are few and all tried.
+circles are few: all tried for a few poses, culled by their angular extent for many.
 
 Rows (y_n = (v - cy) / fy, positive downwards). The floor lies h = altitude below the
 camera and the ceiling H_c - h above it, so the planes' depths are
@@ -43,7 +43,7 @@ from .textures import (CEILING_ID, D_AMP_B, D_AMP_N, D_C0, D_DC, D_INV_NS, D_INV
 T_MIN = 1e-9          # hits closer than this (metres of depth) are ignored
 CHUNK_PIXELS = 16384  # pixels shaded per pass (``_chunks``): temporaries stay in cache
 ANGLE_SLACK = 1e-6    # radians of margin in the circle cull (keeps it conservative)
-FEW_POSES = 4         # up to this many poses, cast every kept segment against every column
+FEW_POSES = 4         # up to this many poses, cast every kept surface against every column
 
 assert D_LN == D_LB + 1 and D_WN == D_WB + 1 and D_DC.start == D_C0.stop   # sliced below
 assert (D_AMP_B, D_AMP_N) == (D_LB, D_LN)
@@ -99,46 +99,12 @@ def _segment_intervals(seg, xn):
     return d, lo, hi, keep, prod[:, 0] - prod[:, 1]
 
 
-def _nearest_segments(d, lo, hi, keep, num, xn):
-    """Nearest segment hit of every column: (t (N, W), segment index (N, W)); t = inf and
-    index 0 where a column meets no segment (the arguments are ``_segment_intervals``'s).
-
-    Only the (segment, column) pairs that can hit are evaluated: a kept segment's columns
-    are those with lo <= x_n <= hi, a contiguous run [u_lo, u_hi) of the sorted x_n. For
-    many poses the pairs are listed flat (a kept segment repeated once per column of its
-    run), t = (dX Z_A - dZ X_A) / (dX - dZ x_n) is computed per pair, and the smallest t
-    of each column is found with ``np.minimum.at`` (ties: the lowest segment index); for
-    a few poses see ``_nearest_segments_padded``.
-    """
-    n, w = len(num), len(xn)
-    dX, dZ = d[:, 0, 0], d[:, 1, 0]                                      # (N, E); d = B - A
-    if n <= FEW_POSES:
-        return _nearest_segments_padded(num, dX, dZ, xn, lo, hi, keep)
-    pose, seg = np.nonzero(keep)                                         # pose-major, seg up
-    u_lo = np.searchsorted(xn, lo[pose, seg], "left")
-    count = np.maximum(np.searchsorted(xn, hi[pose, seg], "right") - u_lo, 0)
-    start = np.cumsum(count) - count                                     # first pair of each
-    # Per pair: its pixel n W + u (= arange + a per-segment offset) and its segment index.
-    offset, seg_of = np.repeat(np.stack([pose * w + u_lo - start, seg]), count, axis=1)
-    pixel = np.arange(len(offset)) + offset
-    num, dX, dZ = np.repeat(np.stack([num[pose, seg], dX[pose, seg], dZ[pose, seg]]),
-                            count, axis=1)
-    t_pair = num / (dX - dZ * np.tile(xn, n)[pixel])
-    t = np.full(n * w, np.inf)
-    np.minimum.at(t, pixel, t_pair)
-    e = keep.shape[1]
-    first = np.full(n * w, e, np.int64)                                  # E: "none yet"
-    win = t_pair == t[pixel]
-    np.minimum.at(first, pixel[win], seg_of[win])
-    first[first == e] = 0
-    return t.reshape(n, w), first.reshape(n, w)
-
-
 def _nearest_segments_padded(num, dX, dZ, xn, lo, hi, keep):
-    """``_nearest_segments`` for a few poses, in fewer (larger) NumPy calls: every kept
-    segment against every column, (N, K, W) (the columns along the fast axis), masked to
-    its interval [lo, hi] (lo = inf for the padding entries of poses with fewer kept
-    segments)."""
+    """Nearest segment hit of every column for a few poses: (t (N, W), segment index
+    (N, W)); t = inf and index 0 where a column meets no segment (the arguments are
+    ``_segment_intervals``'s). Every kept segment against every column, (N, K, W) (the
+    columns along the fast axis), masked to its interval [lo, hi] (lo = inf for the
+    padding entries of poses with fewer kept segments): few, large NumPy calls."""
     pack = np.stack([num, dX, dZ, np.where(keep, lo, np.inf), hi], axis=1)   # (N, 5, E)
     order, _ = _compact(keep, np.arange(len(num))[:, None])
     kept = np.take_along_axis(pack, order[:, None, :], axis=2)           # (N, 5, K)
@@ -151,36 +117,24 @@ def _nearest_segments_padded(num, dX, dZ, xn, lo, hi, keep):
 
 
 def _nearest_circles(Xc, Zc, R, xn, rows):
-    """Nearest circle hit of every column: (t (N, W), circle index (N, W)), t = inf where
-    none. t = (b - sqrt(b^2 - a k)) / a (module docstring). For many poses, tried only for
-    the circles whose angular extent atan2(X_c, Z_c) +- asin(R / d), d = |(X_c, Z_c)|,
-    meets the view [atan x_n(0), atan x_n(W-1)] (a conservative cull: the others cannot be
-    hit); for a few poses culling costs more than it saves, and all are tried."""
-    n = len(Xc)
-    if n <= FEW_POSES:
-        order, valid = None, R > 0                                       # padding has R = 0
-    else:
-        phi = np.arctan2(Xc, Zc)
-        half = np.arcsin(np.minimum(R / np.hypot(Xc, Zc), 1.0))
-        keep = ((R > 0) & (phi + half >= np.arctan(xn[0]) - ANGLE_SLACK)
-                & (phi - half <= np.arctan(xn[-1]) + ANGLE_SLACK))
-        if not keep.any():
-            return np.full((n, len(xn)), np.inf), np.zeros((n, len(xn)), np.int64)
-        order, valid = _compact(keep, rows)
-        Xc, Zc, R = Xc[rows, order], Zc[rows, order], R[rows, order]
-    k = np.where(valid, Xc * Xc + Zc * Zc - R * R, np.inf)[:, None, :]
+    """Nearest circle hit of every column for a few poses: (t (N, W), circle index
+    (N, W)), t = inf where none. t = (b - sqrt(b^2 - a k)) / a (module docstring), tried
+    for every circle (culling costs more than it saves here; padding has R = 0)."""
+    k = np.where(R > 0, Xc * Xc + Zc * Zc - R * R, np.inf)[:, None, :]
     xw = xn[:, None]                                                     # (W, 1)
     b = Zc[:, None, :] + xw * Xc[:, None, :]                             # (N, W, C)
     a = 1.0 + xw * xw
     t_c = (b - np.sqrt(b * b - a * k)) / a                               # NaN: no hit
     t_c = np.where(t_c > T_MIN, t_c, np.inf)
     ic = np.argmin(t_c, axis=-1)
-    return t_c[rows, np.arange(len(xn)), ic], (ic if order is None else order[rows, ic])
+    return t_c[rows, np.arange(len(xn)), ic], ic
 
 
 def _cast_columns(batch: SceneBatch, poses: np.ndarray, xn: np.ndarray) -> dict:
-    """Body of ``cast_columns`` (run with floating-point warnings off); one pose goes to
-    ``_cast_one``."""
+    """Body of ``cast_columns`` (run with floating-point warnings off). Three paths with
+    bit-identical results: one pose goes to ``_cast_one``; up to FEW_POSES poses try every
+    kept segment and every circle against every column (few, large NumPy calls, below);
+    more poses go to ``_cast_many``, which evaluates only the pairs that can hit."""
     n = len(poses)
     if n == 1:
         return _cast_one(batch, poses, xn)
@@ -197,8 +151,13 @@ def _cast_columns(batch: SceneBatch, poses: np.ndarray, xn: np.ndarray) -> dict:
     e_count = batch.seg_len.shape[1]
     seg = np.ascontiguousarray(xz[:, :, :2 * e_count]).reshape(n, 2, 2, e_count)  # X/Z, A/B
     d, lo, hi, keep, num = _segment_intervals(seg, xn)
-    ts, iseg = _nearest_segments(d, lo, hi, keep, num, xn)
     Xc, Zc = xz[:, 0, 2 * e_count:], xz[:, 1, 2 * e_count:]              # (N, C)
+    if n > FEW_POSES:
+        out = _cast_many(batch, world[:, 0], xn, seg, d, lo, hi, keep, num, Xc, Zc,
+                         poses[:, 2, None], c, s)
+        out["world"] = world
+        return out
+    ts, iseg = _nearest_segments_padded(num, d[:, 0, 0], d[:, 1, 0], xn, lo, hi, keep)
     R = batch.circ_r[world[:, 0]]
     tc, ic = _nearest_circles(Xc, Zc, R, xn, rows)
     # The winner of each column and what its surface needs.
@@ -210,6 +169,116 @@ def _cast_columns(batch: SceneBatch, poses: np.ndarray, xn: np.ndarray) -> dict:
                    poses[:, 2, None], c, s)
     out["world"] = world
     return out
+
+
+def _cast_many(batch, world, xn, seg, d, lo, hi, keep, num, Xc, Zc, yaw, c, s) -> dict:
+    """``_cast_columns`` for many poses: only the (surface, column) pairs that can hit are
+    evaluated, listed flat, segments and circles together.
+
+    A kept segment can hit only the columns with lo <= x_n <= hi, a contiguous run of the
+    sorted x_n; a circle only those whose ray angle atan x_n lies within its angular
+    extent atan2(X_c, Z_c) +- asin(R / |(X_c, Z_c)|) (widened by ANGLE_SLACK to stay
+    conservative). Each candidate surface is repeated once per column of its run, its t
+    computed per pair, and the smallest t of each column found with ``np.minimum.at``.
+    Ties go to the lowest surface id, with the E segments numbered before the C circles:
+    the same winner as the few-pose path (a circle wins only if strictly nearer). A
+    column that meets nothing gets t = inf and segment 0, as in the few-pose path.
+
+    world (N,), yaw, c, s (N, 1); the other arguments as in ``_cast_columns``. Returns
+    the dict of ``cast_columns`` without "world".
+    """
+    n, w = len(world), len(xn)
+    e, n_circ = keep.shape[1], Xc.shape[1]
+    one_world = len(batch) == 1
+    R = batch.circ_r[0] if one_world else batch.circ_r[world]            # (C,) or (N, C)
+    R = np.broadcast_to(R, Xc.shape)
+    phi = np.arctan2(Xc, Zc)
+    half = np.arcsin(np.minimum(R / np.hypot(Xc, Zc), 1.0))
+
+    # Candidates: flat index pose * E + segment (resp. pose * C + circle) and the run of
+    # columns [first, stop) each can hit.
+    cand_s = np.flatnonzero(keep)
+    cand_c = np.flatnonzero(R > 0)                                       # not padding
+    angle = np.arctan(xn)
+    first = np.concatenate([np.searchsorted(xn, lo.ravel().take(cand_s), "left"),
+                            np.searchsorted(angle, (phi - half).ravel().take(cand_c)
+                                            - ANGLE_SLACK, "left")])
+    stop = np.concatenate([np.searchsorted(xn, hi.ravel().take(cand_s), "right"),
+                           np.searchsorted(angle, (phi + half).ravel().take(cand_c)
+                                           + ANGLE_SLACK, "right")])
+    count = np.maximum(stop - first, 0)
+    start = np.cumsum(count) - count                                     # its first pair
+    n_seg_pairs = int(count[:len(cand_s)].sum())
+    # Per pair: the candidate it belongs to and its pixel pose * W + u (u = first + the
+    # pair's rank within its candidate's run).
+    cand = np.repeat(np.arange(len(count)), count)
+    pose = np.concatenate([cand_s // e, cand_c // n_circ])
+    pixel = np.arange(len(cand)) + (pose * w + first - start).take(cand)
+    x = np.tile(xn, n).take(pixel)                                       # its x_n
+    t_pair = np.empty(len(cand))
+    # Segment pairs: t = num / (dX - dZ x_n), with the values gathered first for the
+    # candidates, then for their pairs (candidates in order: cache-friendly reads).
+    cand_seg = cand[:n_seg_pairs]
+    num_p, dx_p, dz_p = (v.reshape(-1).take(cand_s).take(cand_seg)
+                         for v in (num, d[:, 0, 0], d[:, 1, 0]))
+    np.divide(num_p, dx_p - dz_p * x[:n_seg_pairs], out=t_pair[:n_seg_pairs])
+    # Circle pairs: t = (b - sqrt(b^2 - a k)) / a, a = 1 + x_n^2, b = Z_c + x_n X_c,
+    # k = X_c^2 + Z_c^2 - R^2 (NaN when the ray misses: dropped below, like t <= T_MIN).
+    k = Xc * Xc + Zc * Zc - R * R
+    circ_vals = np.stack([Xc, Zc, k]).reshape(3, -1)                      # (3, N C)
+    xc_p, zc_p, k_p = circ_vals.take(cand_c.take(cand[n_seg_pairs:] - len(cand_s)), axis=1)
+    xr = x[n_seg_pairs:]
+    a = 1.0 + xr * xr
+    b = zc_p + xr * xc_p
+    t_c = (b - np.sqrt(b * b - a * k_p)) / a
+    t_pair[n_seg_pairs:] = np.where(t_c > T_MIN, t_c, np.inf)
+    # Circle pairs that miss are dropped, so that a column with no hit at all keeps the
+    # segment choice of the few-pose path.
+    drop = n_seg_pairs + np.flatnonzero(~(t_c > T_MIN))
+    if len(drop):
+        t_pair, pixel, cand = (np.delete(v, drop) for v in (t_pair, pixel, cand))
+    # Surface id of each candidate: the segment, or E + the circle.
+    surf = np.concatenate([cand_s % e, e + cand_c % n_circ])
+
+    # The nearest pair of each column, then the lowest surface id among equal nearest.
+    t = np.full(n * w, np.inf)
+    np.minimum.at(t, pixel, t_pair)
+    win = np.flatnonzero(t_pair == t.take(pixel))
+    best = np.full(n * w, e + n_circ)                                    # "none yet"
+    pixel_win, surf_win = pixel.take(win), surf.take(cand.take(win))
+    best[pixel_win] = surf_win
+    if len(win) > np.count_nonzero(best < e + n_circ):
+        # Some column has several equally near pairs (a ray through a corner shared by
+        # two segments): the lowest id wins. Rare, so the slower ``minimum.at`` is
+        # run only then.
+        np.minimum.at(best, pixel_win, surf_win)
+    best[best == e + n_circ] = 0
+
+    # Segment surface of every column (a column won by a circle reads some segment and
+    # is overwritten below): its ends, from this pose, and length, u0, app, from its world.
+    seg_ix = (np.arange(n) * e)[:, None] + best.reshape(n, w)            # pose * E + id
+    xa, za, ex, ez = (v.reshape(-1).take(seg_ix, mode="clip")
+                      for v in (seg[:, 0, 0], seg[:, 1, 0], d[:, 0, 0], d[:, 1, 0]))
+    world_ix = best.reshape(n, w) + (0 if one_world else (world * e)[:, None])  # world E + id
+    length, u0, app = (v.reshape(-1).take(world_ix, mode="clip")
+                       for v in (batch.seg_len, batch.seg_u0, batch.seg_app))
+    t = t.reshape(n, w)
+    tex_s, nx, nz = _segment_surface(t, xn, xa, za, ex, ez, length, u0)
+    app = app.astype(np.int64)
+    # Circle surface of the columns a circle won, written over them.
+    hit_c = np.flatnonzero(best >= e)
+    if len(hit_c):
+        pose_c, ic = hit_c // w, best.take(hit_c) - e
+        circ_ix = pose_c * n_circ + ic
+        world_c = ic if one_world else world.take(pose_c) * n_circ + ic
+        s_c, nx_c, nz_c = _circle_surface(
+            t.reshape(-1).take(hit_c), xn.take(hit_c % w), Xc.reshape(-1).take(circ_ix),
+            Zc.reshape(-1).take(circ_ix), batch.circ_r.reshape(-1).take(world_c),
+            yaw.reshape(-1).take(pose_c))
+        for full, part in ((tex_s, s_c), (nx, nx_c), (nz, nz_c)):
+            full.reshape(-1)[hit_c] = part
+        app.reshape(-1)[hit_c] = batch.circ_app.reshape(-1).take(world_c)
+    return _shade_columns(t, tex_s, nx, nz, app, xn, c, s)
 
 
 def _cast_one(batch: SceneBatch, poses: np.ndarray, xn: np.ndarray) -> dict:
@@ -265,33 +334,49 @@ def _cast_one(batch: SceneBatch, poses: np.ndarray, xn: np.ndarray) -> dict:
     return out
 
 
+def _segment_surface(t, xn, xa, za, ex, ez, length, u0):
+    """Texture coordinate s and unit normal (n_x, n_z) of segment hits at depth t: s = u0
+    + (hit - A).(B - A) / |B - A|, n perpendicular to B - A and facing the camera; the
+    segment values (X_A, Z_A, dX, dZ), length and u0 broadcast against t."""
+    txn = t * xn
+    tex_s = u0 + ((txn - xa) * ex + (t - za) * ez) / length
+    flip = np.where(ex - ez * xn > 0, -1.0, 1.0) / length                # face the camera
+    return tex_s, -ez * flip, ex * flip
+
+
+def _circle_surface(t, xn, cx, cz, radius, yaw):
+    """Texture coordinate s and unit normal of circle hits at depth t: n = (hit - centre)
+    / R, s = R (world angle of n), the angle wrapped to [-pi, pi)."""
+    ncx = (t * xn - cx) / radius
+    ncz = (t - cz) / radius
+    angle = np.arctan2(ncz, ncx) + yaw - 0.5 * np.pi
+    return radius * ((angle + np.pi) % (2 * np.pi) - np.pi), ncx, ncz
+
+
+def _shade_columns(t, tex_s, nx, nz, app, xn, c, s) -> dict:
+    """The dict of ``cast_columns`` (without "world") from the winning surfaces: the wall
+    shade with the world light l written in camera coordinates, (l.g, l.f), and the cosine
+    term |n . (x_n, 1)|."""
+    lx, lz = LIGHT[0] * s - LIGHT[1] * c, LIGHT[0] * c + LIGHT[1] * s
+    return {"t": t, "s": tex_s, "shade": wall_shade(nx * lx + nz * lz),
+            "cos": np.abs(nx * xn + nz), "app": app}
+
+
 def _surface(t, circle, xn, seg, length, u0, seg_app, circ, yaw, c, s) -> dict:
     """What the renderer needs of each column's winning surface, from its hit depth t,
     ``circle`` (True where a circle won) and the winner's segment values seg = (X_A, Z_A,
     dX, dZ), length, u0, app (float) and circle values circ = (X_c, Z_c, R, app); each
     (..., W) (those of the losing kind are ignored). yaw, c = cos yaw, s = sin yaw: (N, 1)
     arrays or floats. Returns the dict of ``cast_columns`` without "world"."""
-    # Segment: n perpendicular to B - A (facing the camera), s = u0 + (hit - A).(B - A)
-    # / |B - A|.
-    xa, za, ex, ez = seg
-    txn = t * xn
-    tex_s = u0 + ((txn - xa) * ex + (t - za) * ez) / length
-    flip = np.where(ex - ez * xn > 0, -1.0, 1.0) / length                # face the camera
-    nx, nz = -ez * flip, ex * flip
+    tex_s, nx, nz = _segment_surface(t, xn, *seg, length, u0)
     app = seg_app.astype(np.int64)
     if circle.any():
-        # Circle: n = (hit - centre) / R, s = R (world angle of n).
         cx, cz, radius, circ_app = circ
-        ncx = (txn - cx) / radius
-        ncz = (t - cz) / radius
-        angle = np.arctan2(ncz, ncx) + yaw - 0.5 * np.pi
+        tex_c, ncx, ncz = _circle_surface(t, xn, cx, cz, radius, yaw)
         nx, nz = np.where(circle, ncx, nx), np.where(circle, ncz, nz)
-        tex_s = np.where(circle, radius * ((angle + np.pi) % (2 * np.pi) - np.pi), tex_s)
+        tex_s = np.where(circle, tex_c, tex_s)
         app = np.where(circle, circ_app, app)
-    # Shade with the world light l written in camera coordinates: (l.g, l.f).
-    lx, lz = LIGHT[0] * s - LIGHT[1] * c, LIGHT[0] * c + LIGHT[1] * s
-    return {"t": t, "s": tex_s, "shade": wall_shade(nx * lx + nz * lz),
-            "cos": np.abs(nx * xn + nz), "app": app}
+    return _shade_columns(t, tex_s, nx, nz, app, xn, c, s)
 
 
 def _check_camera(camera):
