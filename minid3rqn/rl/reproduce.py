@@ -38,10 +38,11 @@ QUICK = dict(steps=3_000, flights=200, depth_frames=600, depth_iterations=300)
 
 
 # The shipped depth recipe (docs/depth.md, sections 5 and 7): basic from scratch with the
-# simulated gyro's yaw, heads starting far (10 m), the soft auto-mask and an lr step at
-# 3/4 of the run; each transfer scenario fine-tunes the basic DispNet on its own frames.
+# simulated gyro's yaw, heads starting far (10 m) and the soft auto-mask; each transfer
+# scenario fine-tunes the basic DispNet on its own frames. Both with an lr step (x 0.1):
+# (iterations, step at).
 DEPTH_RECIPE = ["--gyro-yaw", "--init-disp", "0.1", "--unmasked-weight", "0.1"]
-DEPTH_ITERATIONS = {"basic": 6000, "transfer": 1500}
+DEPTH_SCHEDULE = {"basic": (6000, 4500), "transfer": (3000, 2000)}
 
 
 def _train_depth(scenario: str, out: Path, seed: int, budget: dict,
@@ -49,14 +50,14 @@ def _train_depth(scenario: str, out: Path, seed: int, budget: dict,
     from ..depth import commands as dc
     p = argparse.ArgumentParser()
     dc.add_arguments_train_depth(p)
-    iterations = budget["depth_iterations"] or DEPTH_ITERATIONS[
-        "basic" if init_from is None else "transfer"]
+    iterations, decay_at = DEPTH_SCHEDULE["basic" if init_from is None else "transfer"]
+    if budget["depth_iterations"]:                    # --quick: the same shape, shorter
+        iterations = budget["depth_iterations"]
+        decay_at = iterations * 3 // 4
     argv = ["--scenario", scenario, "--seed", str(seed), "--frames", str(budget["depth_frames"]),
-            "--iterations", str(iterations), "--dir", str(out / "depth" / scenario),
-            "--resume", "--quiet", *DEPTH_RECIPE]
-    if init_from is None:
-        argv += ["--lr-decay-at", str(iterations * 3 // 4)]
-    else:
+            "--iterations", str(iterations), "--lr-decay-at", str(decay_at),
+            "--dir", str(out / "depth" / scenario), "--resume", "--quiet", *DEPTH_RECIPE]
+    if init_from is not None:
         argv += ["--init-from", str(init_from)]
     args = p.parse_args(argv)
     dc.run_train_depth(args)
