@@ -431,7 +431,7 @@ def _camera_constants(camera: Camera) -> dict:
             "l2_col": l2_col, "cos_floor_col": 0.2 * np.sqrt(l2_col),
             "l2_row": l2_row,
             "den_row": camera.fx * np.maximum(np.abs(yn), 0.2 * np.sqrt(l2_row)),
-            "col_u": col_u, "row_v": row_v, "row_src": row_v + w,          # (H, W) each
+            "col_u": col_u, "row_src": row_v + w,                            # (H, W) each
         }
     return _CAMERA_CONSTANTS[key]
 
@@ -616,6 +616,9 @@ def _shade_pixels(batch: SceneBatch, poses: np.ndarray, camera: Camera):
     base = np.empty((3, n, 1, 1), f32)
     base[0:2, :, 0, 0], base[2, :, 0, 0] = poses[:, :2].T, batch.altitude[world]
     t32, zp32 = cf[2], planes["zp32"][world]                              # (N, W), (N, H)
+    if n > 1:   # the table rows of each frame's columns and of its image rows (below)
+        col_src = np.arange(n * w).reshape(n, w)
+        row_src = (n * w + h * world)[:, None] + np.arange(h)            # (N, H)
 
     depth = np.empty((n, h, w), f32)
     rgb = np.empty((n, h, w, 3), np.uint8)
@@ -623,11 +626,15 @@ def _shade_pixels(batch: SceneBatch, poses: np.ndarray, camera: Camera):
         t, zp = t32[a:b, None, :], zp32[a:b, r0:r1, None]                 # (m, 1, W), (m, R, 1)
         wall = t <= zp                                                    # (m, R, W)
         np.minimum(t, zp, out=depth[a:b, r0:r1])
-        if n == 1:
+        if n == 1:          # one frame: one np.where of two cached (H, W) index arrays
             src = np.where(wall, const["col_u"][r0:r1], const["row_src"][r0:r1])
         else:
-            src = np.where(wall, const["col_u"][r0:r1] + (w * np.arange(a, b))[:, None, None],
-                           const["row_v"][r0:r1] + (n * w + h * world[a:b])[:, None, None])
+            # The plane rows broadcast along the columns, then the wall columns copied
+            # over the wall pixels (a masked copy from broadcast operands is cheaper than
+            # ``np.where`` on full-size index arrays).
+            src = np.empty(wall.shape, np.intp)
+            np.copyto(src, row_src[a:b, r0:r1, None])
+            np.copyto(src, col_src[a:b, None, :], where=wall)
         # From here on every per-pixel array is flat, (P,) with P = m R W pixels (or a
         # stack of such rows): 1-D loops over them stay fast.
         src = src.reshape(-1)
@@ -636,7 +643,8 @@ def _shade_pixels(batch: SceneBatch, poses: np.ndarray, camera: Camera):
         # Texture coordinates: x = (plane s, h, wall h), then x_1 = the pixel's h.
         x = np.multiply(rf[:, a:b, r0:r1, None], cf[:, a:b, None, :])      # (3, m, R, W)
         x += base[:, a:b]
-        x[1] = np.where(wall, x[2], x[1])
+        np.copyto(x[1], x[2], where=wall)      # walls: their h (masked copy: cheaper
+        #                                        than np.where, which writes every pixel)
         # The four lattice coordinates (2, 2, P) = (s, h) * scales + offsets, in two
         # calls: the gathered table's columns are read as (4, P) strided views.
         coords = np.empty((2, 2, wall.size), f32)
