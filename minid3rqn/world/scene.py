@@ -248,7 +248,6 @@ class SceneBatch:
         circ_r2 (N, C), circ_inf (N, C)                        R^2; 0 (inf for padding)
         apps (N, A, N_PARAMS) float32                          appearance tables
         tex (N, A, N_DERIVED) float32                          ``derived_table(apps)``
-        tex_t (N_DERIVED, N A) float32                         the same, transposed
         altitude (N,), ceiling (N,)
     ``set(n, scene)`` swaps one world in place (the arrays grow if it needs more room).
     """
@@ -294,7 +293,6 @@ class SceneBatch:
         self.circ_inf = np.zeros((n, C))
         self.apps = np.zeros((n, A, N_PARAMS), np.float32)
         self.tex = np.zeros((n, A, N_DERIVED), np.float32)
-        self.tex_t = np.zeros((N_DERIVED, n * A), np.float32)
         self.altitude = np.zeros(n)
         self.ceiling = np.zeros(n)
 
@@ -330,7 +328,6 @@ class SceneBatch:
         self.apps[n, :A] = scene.appearances
         self.tex[n] = 0.0
         self.tex[n, :A] = derived_table(scene.appearances)
-        self.tex_t[:, n * self.tex.shape[1]:(n + 1) * self.tex.shape[1]] = self.tex[n].T
         self.altitude[n] = scene.altitude
         self.ceiling[n] = scene.ceiling
         self.scenes[n] = scene
@@ -345,7 +342,6 @@ class SceneBatch:
         for name, value in vars(self).items():
             if isinstance(value, np.ndarray) and value.ndim >= 1 and len(value) == n:
                 setattr(sub, name, value[idx])
-        sub.tex_t = np.ascontiguousarray(sub.tex.reshape(-1, N_DERIVED).T)
         sub.scenes = [self.scenes[k] for k in idx]
         sub._cache = {}
         return sub
