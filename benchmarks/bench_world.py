@@ -52,6 +52,32 @@ def pymunk_depth_row(scene, pose, xn, reach=200.0):
     return out
 
 
+def profile_vec_step(scenario: str, n: int, seed: int, steps: int = 40) -> None:
+    """cProfile of ``steps`` VecDroneEnv.step calls, as the benchmark times them (the
+    first 8 steps after a reset; resets are not profiled): each function's share of the
+    time (cumulative, so nested shares overlap), the ones above 2 %."""
+    import cProfile
+    import pstats
+    vec = VecDroneEnv(n, scenario, seed=seed, autoreset=False)
+    act = np.random.default_rng(seed)
+    prof = cProfile.Profile()
+    for k in range(steps):
+        if k % 8 == 0:
+            vec.reset()
+        prof.enable()
+        vec.step(act.integers(0, 5, n))
+        prof.disable()
+    stats = pstats.Stats(prof).stats            # (file, line, name) -> (cc, nc, tt, ct, ..)
+    total = max(ct for (_, _, _, ct, _) in stats.values())
+    rows = sorted(((ct / total, name, f"{file.rsplit('/', 1)[-1]}:{line}")
+                   for (file, line, name), (_, _, _, ct, _) in stats.items()), reverse=True)
+    print(f"VecDroneEnv.step, {n} flights, {steps} steps, scenario {scenario!r}, seed {seed}:"
+          f" cumulative share of the time\n")
+    for share, name, where in rows:
+        if share >= 0.02:
+            print(f"{100 * share:5.1f} %  {name}  ({where})")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
@@ -59,7 +85,13 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--n-envs", type=int, default=100)
     parser.add_argument("--quick", action="store_true", help="fewer iterations (a smoke run)")
+    parser.add_argument("--profile", action="store_true",
+                        help="instead: where a batched step's time goes (cProfile of 40 "
+                             "VecDroneEnv.step calls, --n-envs flights)")
     args = parser.parse_args(argv)
+    if args.profile:
+        profile_vec_step(args.scenario, args.n_envs, args.seed)
+        return
     k = 0.1 if args.quick else 1.0
     reps = 2 if args.quick else args.repeats
     rng = np.random.default_rng(args.seed)
