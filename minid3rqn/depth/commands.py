@@ -119,6 +119,9 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
                    help="PoseNet rotation output scale (default: the translation's, 0.1)")
     p.add_argument("--unmasked-weight", type=float, default=d.loss.unmasked_weight,
                    help="weight of an unmasked photometric term beside the auto-mask")
+    p.add_argument("--full-res", action="store_true",
+                   help="monodepth2's loss: upsample every scale's disparity and warp the "
+                        "full-size images (default: SfMLearner's downsampled images)")
     p.add_argument("--no-edge-aware", action="store_true")
     p.add_argument("--no-min-reprojection", action="store_true")
     p.add_argument("--no-automask", action="store_true")
@@ -147,7 +150,7 @@ def config_from_args(args):
                       edge_aware=not args.no_edge_aware,
                       min_reprojection=not args.no_min_reprojection,
                       automask=not args.no_automask, speed_weight=args.speed_weight,
-                      unmasked_weight=args.unmasked_weight)
+                      unmasked_weight=args.unmasked_weight, full_res=args.full_res)
     init = args.pose_init_forward if args.pose_init_forward and args.pose_init_forward > 0 \
         else None
     return TrainConfig(iterations=args.iterations, batch_size=args.batch_size, lr=args.lr,
