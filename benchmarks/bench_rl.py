@@ -23,7 +23,9 @@ Measured (medians over ``--repeat`` runs after warm-ups, float32):
 - ``eval_2000``: ``evaluate_policy`` with the D3RQN on 2000 flights x 50 steps, GT
   depth (and predicted depth if a depth model is shipped): seconds per model and
   scenario (target <= 120 s). ``--eval-flights`` scales it down for a quick look
-  (the result is then extrapolated linearly and marked so).
+  (the result is then extrapolated linearly and marked so). ``--eval-workers 1,2``
+  times it with the flights' chunks spread over that many processes, one per core
+  (``evaluate --workers``; each process runs ``--threads`` BLAS threads).
 
 Threads: the script re-runs itself in a child with OMP/OPENBLAS/MKL_NUM_THREADS set
 before NumPy loads (and ``torch.set_num_threads``). Output: one JSON line per part.
@@ -263,7 +265,7 @@ def bench_framework_rendered_twice(repeat: int, threads: int, n_flights: int = 1
             "note": "the old loop: perception twice per step"}
 
 
-def bench_eval(flights: int, threads: int) -> list:
+def bench_eval(flights: int, threads: int, workers: int = 1) -> list:
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.evaluate import evaluate_policy
     policy, model = _qnet_model()
@@ -273,8 +275,9 @@ def bench_eval(flights: int, threads: int) -> list:
         modes.append(("pred", load_depth_estimator(shipped_depth_model("basic"))))
     for depth, est in modes:
         res = evaluate_policy(policy, "basic", n_flights=flights, depth=depth,
-                              depth_estimator=est, progress=False)
-        outs.append({"part": "eval_2000", "threads": threads, "depth": depth,
+                              depth_estimator=est, progress=False, workers=workers)
+        outs.append({"part": "eval_2000", "threads": threads, "workers": workers,
+                     "depth": depth,
                      "flights": flights, "seconds": res.seconds,
                      "seconds_per_2000": res.seconds * 2000 / flights,
                      "extrapolated": flights != 2000, "rate": res.rate, "model": model})
@@ -294,8 +297,9 @@ def child(args) -> None:
             print(json.dumps(bench_framework_rendered_twice(args.repeat, args.threads,
                                                             n_flights)), flush=True)
     if "eval" in parts:
-        for row in bench_eval(args.eval_flights, args.threads):
-            print(json.dumps(row), flush=True)
+        for workers in [int(w) for w in args.eval_workers.split(",")]:
+            for row in bench_eval(args.eval_flights, args.threads, workers):
+                print(json.dumps(row), flush=True)
 
 
 def main():
@@ -305,6 +309,8 @@ def main():
     p.add_argument("--only", default=None,
                    help="comma list of update,framework,framework_old,eval")
     p.add_argument("--eval-flights", type=int, default=2000)
+    p.add_argument("--eval-workers", default="1",
+                   help="comma list of process counts for the eval part, e.g. 1,2")
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.child:
@@ -313,7 +319,8 @@ def main():
     env = dict(os.environ, OMP_NUM_THREADS=str(args.threads),
                OPENBLAS_NUM_THREADS=str(args.threads), MKL_NUM_THREADS=str(args.threads))
     cmd = [sys.executable, os.path.abspath(__file__), "--child", "--threads", str(args.threads),
-           "--repeat", str(args.repeat), "--eval-flights", str(args.eval_flights)]
+           "--repeat", str(args.repeat), "--eval-flights", str(args.eval_flights),
+           "--eval-workers", args.eval_workers]
     if args.only:
         cmd += ["--only", args.only]
     sys.exit(subprocess.run(cmd, env=env).returncode)

@@ -85,6 +85,32 @@ def test_evaluation_smoke_baselines():
     assert straight.rate == 0.0          # no free straight line 40 m long in any world
 
 
+def test_evaluation_is_the_same_in_parallel_and_in_any_chunk_order():
+    """Each chunk has its own world seed and its own policy generator, so two worker
+    processes give exactly the one-process result, and a random policy's flights do
+    not depend on what it flew before."""
+    results = {}
+    for name, make in [("random", lambda: RandomPolicy(5, seed=0)),
+                       ("reactive", lambda: ReactivePolicy(ACTIONS))]:
+        one = evaluate_policy(make(), "basic", n_flights=12, chunk=4, max_steps=8,
+                              progress=False)
+        two = evaluate_policy(make(), "basic", n_flights=12, chunk=4, max_steps=8,
+                              progress=False, workers=2)
+        assert (one.successes, one.mean_steps) == (two.successes, two.mean_steps)
+        results[name] = one
+    used = RandomPolicy(5, seed=0)
+    evaluate_policy(used, "basic", n_flights=4, chunk=4, max_steps=8, seed=99, progress=False)
+    again = evaluate_policy(used, "basic", n_flights=12, chunk=4, max_steps=8, progress=False)
+    assert again.mean_steps == results["random"].mean_steps
+
+
+def test_evaluation_rejects_bad_counts():
+    for kwargs, word in [({"n_flights": 0}, "n_flights"), ({"chunk": 0}, "chunk"),
+                         ({"workers": 0}, "workers")]:
+        with pytest.raises(ValueError, match=word):
+            evaluate_policy(StraightPolicy(), "basic", progress=False, **kwargs)
+
+
 def test_oracle_flies_the_channel():
     res = evaluate_policy(OraclePolicy(), "channel", n_flights=4, max_steps=20, progress=False)
     assert res.rate >= 0.75

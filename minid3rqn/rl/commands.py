@@ -181,6 +181,9 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth", default="gt", choices=["gt", "pred"])
     p.add_argument("--depth-model", default=None)
     p.add_argument("--chunk", type=int, default=500, help="flights stepped together")
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes flying chunks in parallel, one per core (same result; "
+                        "run with OMP_NUM_THREADS=1)")
     p.add_argument("--window", type=int, default=None,
                    help="recurrent Q-nets: act from a zero state over the last N frames at "
                         "every step (as trained) instead of carrying the state through "
@@ -196,7 +199,8 @@ def run_evaluate(args) -> int:
         pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES
                           else None)
         res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
-                              args.chunk, args.depth, est, progress=not args.quiet)
+                              args.chunk, args.depth, est, progress=not args.quiet,
+                              workers=args.workers)
         print(res.line(), flush=True)
         if args.json:
             with open(args.json, "a") as f:

@@ -15,7 +15,9 @@ Unlike p +- z sqrt(p(1-p)/n) it stays inside [0, 1] and is not zero-width at 0 o
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
 import time
+import warnings
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -90,33 +92,85 @@ def run_flights(policy: Policy, flights: Flights, max_steps: int, record=None) -
     return steps
 
 
+def _chunk_seeds(seed: int, n_flights: int, chunk: int) -> list[tuple[int, int]]:
+    """(flights, world seed) of every chunk: chunk k's worlds come from the k-th child
+    of ``SeedSequence(seed)``, so a chunk's flights do not depend on who flies them."""
+    children = np.random.SeedSequence(seed).spawn(-(-n_flights // chunk))
+    return [(min(chunk, n_flights - start), int(c.generate_state(1)[0]))
+            for start, c in zip(range(0, n_flights, chunk), children)]
+
+
+def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsConfig,
+               depth: str, depth_estimator, max_steps: int) -> np.ndarray:
+    """Steps survived by the ``n`` flights of one chunk (world seed ``child``)."""
+    # A policy with a random generator (Random, an epsilon-greedy Q-net) draws from one
+    # seeded by the chunk: a chunk's result is the same in any process, in any order.
+    policy.reseed((child, 0x5EED))
+    flights = Flights(scenario, n, seed=child, config=cfg, depth=depth,
+                      depth_estimator=depth_estimator, autoreset=False)
+    return run_flights(policy, flights, max_steps)
+
+
+_FORKED = None       # what a forked worker process flies (set just before the fork)
+
+
+def _fly_chunk_forked(task):
+    n, child = task
+    return _fly_chunk(*_FORKED[:2], n, child, *_FORKED[2:])
+
+
 def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 2000,
                     seed: int = 12345, max_steps: int = 50, chunk: int = 500,
                     depth: str = "gt", depth_estimator=None,
                     flights_config: FlightsConfig | None = None,
-                    progress: bool = True) -> EvalResult:
-    """Success rate of ``policy`` over ``n_flights`` fresh flights (greedy, batched)."""
+                    progress: bool = True, workers: int = 1) -> EvalResult:
+    """Success rate of ``policy`` over ``n_flights`` fresh flights (greedy, batched).
+
+    The flights are flown ``chunk`` at a time, each chunk from its own seed
+    (``_chunk_seeds``). ``workers`` > 1 flies the chunks in that many processes (one
+    per core; forked, so the policy and the depth network are shared, not pickled):
+    the result is the same as with one.
+    """
     if n_flights < 1:
         raise ValueError(f"evaluate_policy: n_flights must be >= 1; got {n_flights}")
+    if chunk < 1:
+        raise ValueError(f"evaluate_policy: chunk must be >= 1; got {chunk}")
+    if workers < 1:
+        raise ValueError(f"evaluate_policy: workers must be >= 1; got {workers}")
     cfg = flights_config or FlightsConfig()
     cfg = FlightsConfig(**{**asdict(cfg), "max_steps": max_steps, "test_worlds": True,
                            "n_worlds": min(cfg.n_worlds, chunk, n_flights)})
+    tasks = _chunk_seeds(seed, n_flights, chunk)
+    workers = min(workers, len(tasks))
+    if workers > 1 and "fork" not in mp.get_all_start_methods():
+        warnings.warn("evaluate_policy: this platform cannot fork; flying the chunks in "
+                      "one process", RuntimeWarning, stacklevel=2)
+        workers = 1
     t0 = time.time()
-    survived = []
     bar = None
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=n_flights, unit="flight", desc=f"eval {policy.name} {scenario}",
                    dynamic_ncols=True, leave=False)
-    ss = np.random.SeedSequence(seed)
-    for k, start in enumerate(range(0, n_flights, chunk)):
-        n = min(chunk, n_flights - start)
-        child = int(ss.spawn(1)[0].generate_state(1)[0])
-        flights = Flights(scenario, n, seed=child, config=cfg, depth=depth,
-                          depth_estimator=depth_estimator, autoreset=False)
-        survived.append(run_flights(policy, flights, max_steps))
-        if bar is not None:
-            bar.update(n)
+    survived = []
+    if workers == 1:
+        for n, child in tasks:
+            survived.append(_fly_chunk(policy, scenario, n, child, cfg, depth,
+                                       depth_estimator, max_steps))
+            if bar is not None:
+                bar.update(n)
+    else:
+        global _FORKED
+        _FORKED = (policy, scenario, cfg, depth, depth_estimator, max_steps)
+        try:
+            with mp.get_context("fork").Pool(workers) as pool:
+                # imap keeps the chunks' order, so the result is the one-process one
+                for (n, _), steps in zip(tasks, pool.imap(_fly_chunk_forked, tasks)):
+                    survived.append(steps)
+                    if bar is not None:
+                        bar.update(n)
+        finally:
+            _FORKED = None
     if bar is not None:
         bar.close()
     survived = np.concatenate(survived)

@@ -27,6 +27,11 @@ class Policy:
     def reset(self, n: int) -> None:
         self.n = n
 
+    def reseed(self, seed) -> None:
+        """Restart the policy's random generator, if it has one, from ``seed``."""
+        if hasattr(self, "rng"):
+            self.rng = np.random.default_rng(seed)
+
     def act(self, obs: dict) -> np.ndarray:
         raise NotImplementedError
 
