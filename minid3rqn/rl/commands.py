@@ -275,12 +275,15 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
     p.add_argument("--table", choices=["5", "6", "both"], default="both")
     p.add_argument("--train-depth", default="gt", choices=["gt", "pred"],
                    help="depth the Q-nets are trained on (default gt; tested on --depth)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes for the evaluations (evaluate --workers)")
 
 
 def run_reproduce(args) -> int:
     from .reproduce import reproduce
     reproduce(out=Path(args.out), quick=args.quick, seed=args.seed, depth=args.depth,
-              skip_depth=args.skip_depth, tables=args.table, train_depth=args.train_depth)
+              skip_depth=args.skip_depth, tables=args.table, train_depth=args.train_depth,
+              workers=args.workers)
     return 0
 
 

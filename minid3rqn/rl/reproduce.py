@@ -84,7 +84,8 @@ def _train_agent(spec: str, out: Path, seed: int, budget: dict, train_depth: str
 
 
 def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred",
-              skip_depth: bool = False, tables: str = "both", train_depth: str = "gt") -> dict:
+              skip_depth: bool = False, tables: str = "both", train_depth: str = "gt",
+              workers: int = 1) -> dict:
     budget = QUICK if quick else FULL
     out = out / "quick" if quick else out      # never resume a full run from a quick one
     out.mkdir(parents=True, exist_ok=True)
@@ -110,7 +111,7 @@ def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred"
         for spec in policies:
             pol = make_policy(str(spec), seed)
             res = evaluate_policy(pol, scenario, budget["flights"], seed=12345 + seed,
-                                  depth=depth, depth_estimator=est)
+                                  depth=depth, depth_estimator=est, workers=workers)
             print(res.line(), flush=True)
             rows.append(res.to_dict())
         return rows
