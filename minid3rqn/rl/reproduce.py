@@ -1,11 +1,15 @@
 """``python -m minid3rqn reproduce``: Tables 5 and 6 end to end.
 
-    1. depth: train a DispNet on basic, then fine-tune it in channel, intersections and
-       corners (the shipped recipe), unless ``--skip-depth`` (then the shipped
-       ``models/depth_<scenario>.npz``);
-    2. Table 5: train the Q-family on ``basic`` (same budget and seed for every model:
-       D3RQN, DDRQN, D3QN, DDQN, and the non-recurrent pair with 5 stacked frames);
-       evaluate them with Straight, Random, Reactive and the Oracle on fresh worlds;
+    1. depth: train a DispNet on basic (v1), fine-tune it once more on the same frames
+       (v2, the one the Q-nets read in basic), and fine-tune v1 in channel,
+       intersections and corners (the shipped recipe, docs/depth.md section 7), unless
+       ``--skip-depth`` (then the shipped ``models/depth_<scenario>.npz``);
+    2. Table 5: train the Q-family on ``basic`` on ground-truth depth (same budget and
+       seed for every model: D3RQN, DDRQN, D3QN, DDQN, and the non-recurrent pair with
+       5 stacked frames; the shipped D3RQN's 240k-transition recipe), then, for
+       ``--depth pred``, fine-tune each on the basic DispNet's depth (20k transitions,
+       as the shipped model); evaluate them with Straight, Random, Reactive and the
+       Oracle on fresh worlds;
     3. Table 6: the D3RQN from step 2, unchanged, in channel / intersections / corners,
        reading the depth net trained there.
 
@@ -33,8 +37,12 @@ PAPER_T6 = {"channel": {"Straight": 0.0, "Random": 0.003, "D3RQN": 0.923},
 TRANSFER = ("channel", "intersections", "corners")
 FAMILY = ("d3rqn", "ddrqn", "d3qn", "ddqn", "d3qn:5", "ddqn:5")
 
-FULL = dict(steps=60_000, flights=2000, depth_frames=5000, depth_iterations=None)
-QUICK = dict(steps=3_000, flights=200, depth_frames=600, depth_iterations=300)
+# Q-nets: ``steps`` transitions on GT depth (the shipped 240k recipe, docs/results.md),
+# then ``finetune_steps`` on predicted depth when the tables are on predicted depth.
+FULL = dict(steps=240_000, updates_per_step=2.0, eps_decay=100_000, learning_starts=5000,
+            finetune_steps=20_000, flights=2000, depth_frames=5000, depth_iterations=None)
+QUICK = dict(steps=3_000, updates_per_step=4.0, eps_decay=2_500, learning_starts=500,
+             finetune_steps=1_000, flights=200, depth_frames=600, depth_iterations=300)
 
 
 # The shipped depth recipe (docs/depth.md, sections 5 and 7): basic from scratch with the
@@ -46,7 +54,10 @@ DEPTH_SCHEDULE = {"basic": (6000, 4500), "transfer": (3000, 2000)}
 
 
 def _train_depth(scenario: str, out: Path, seed: int, budget: dict,
-                 init_from: Path | None = None) -> Path:
+                 init_from: Path | None = None, name: str | None = None,
+                 data_from: str | None = None) -> Path:
+    """Train (``init_from`` None) or fine-tune a DispNet in ``out/depth/<name>``;
+    ``data_from``: reuse that run folder's frames instead of collecting new ones."""
     from ..depth import commands as dc
     p = argparse.ArgumentParser()
     dc.add_arguments_train_depth(p)
@@ -54,29 +65,49 @@ def _train_depth(scenario: str, out: Path, seed: int, budget: dict,
     if budget["depth_iterations"]:                    # --quick: the same shape, shorter
         iterations = budget["depth_iterations"]
         decay_at = iterations * 3 // 4
+    run_dir = out / "depth" / (name or scenario)
     argv = ["--scenario", scenario, "--seed", str(seed), "--frames", str(budget["depth_frames"]),
             "--iterations", str(iterations), "--lr-decay-at", str(decay_at),
-            "--dir", str(out / "depth" / scenario), "--resume", "--quiet", *DEPTH_RECIPE]
+            "--dir", str(run_dir), "--resume", "--quiet", *DEPTH_RECIPE]
     if init_from is not None:
         argv += ["--init-from", str(init_from)]
+    if budget.get("smoke"):                           # tests: seconds
+        argv.append("--smoke")
+    if data_from is not None:
+        argv += ["--data", str(out / "depth" / data_from / "train.npz"),
+                 "--test-data", str(out / "depth" / data_from / "test.npz")]
     args = p.parse_args(argv)
     dc.run_train_depth(args)
-    return out / "depth" / scenario / "model.npz"
+    return run_dir / "model.npz"
 
 
-def _train_agent(spec: str, out: Path, seed: int, budget: dict, train_depth: str, depth_model):
+def _train_agent(spec: str, out: Path, seed: int, budget: dict, train_depth: str, depth_model,
+                 init_model: Path | None = None) -> Path:
+    """Train one Q-net of the family: from scratch (``budget["steps"]``, the shipped
+    240k recipe), or, with ``init_model``, fine-tune that one on ``train_depth``
+    (``budget["finetune_steps"]``, the shipped fine-tune: docs/results.md)."""
     variant, _, stack = spec.partition(":")
     p = argparse.ArgumentParser()
     add_arguments_train_agent(p)
-    argv = ["--variant", variant, "--seed", str(seed), "--steps", str(budget["steps"]),
-            "--learning-starts", str(min(5000, budget["steps"] // 6)),
-            "--eps-decay", str(budget["steps"] * 5 // 6), "--replay", "100000",
-            "--updates-per-step", "4.0", "--depth", train_depth]
+    argv = ["--variant", variant, "--seed", str(seed), "--depth", train_depth]
+    if init_model is None:
+        argv += ["--steps", str(budget["steps"]),
+                 "--learning-starts", str(budget["learning_starts"]),
+                 "--eps-decay", str(budget["eps_decay"]), "--replay", "100000",
+                 "--updates-per-step", str(budget["updates_per_step"])]
+    else:
+        steps = budget["finetune_steps"]
+        argv += ["--steps", str(steps), "--learning-starts", str(steps // 10),
+                 "--eps-start", "0.2", "--eps-decay", str(steps * 2 // 5),
+                 "--replay", "60000", "--updates-per-step", "4.0",
+                 "--init-model", str(init_model)]
     if stack:
         argv += ["--stack", stack]
+    if budget.get("smoke"):                           # tests: seconds
+        argv.append("--smoke")
     args = p.parse_args(argv)
     cfg = config_from_args(args)
-    run_dir = out / "agent" / run_name(cfg)
+    run_dir = out / "agent" / (run_name(cfg) + ("" if init_model is None else "_finetuned"))
     est = load_depth_estimator(depth_model) if train_depth == "pred" else None
     tr = train(cfg, run_dir, depth_estimator=est, progress=True, resume=True)
     return tr.save_model(run_dir / "model.npz", {"command": "reproduce " + " ".join(argv),
@@ -85,8 +116,10 @@ def _train_agent(spec: str, out: Path, seed: int, budget: dict, train_depth: str
 
 def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred",
               skip_depth: bool = False, tables: str = "both", train_depth: str = "gt",
-              workers: int = 1) -> dict:
-    budget = QUICK if quick else FULL
+              workers: int = 1, budget: dict | None = None) -> dict:
+    """Run the pipeline of the module docstring; ``budget`` (tests) overrides the
+    preset's entries."""
+    budget = {**(QUICK if quick else FULL), **(budget or {})}
     out = out / "quick" if quick else out      # never resume a full run from a quick one
     out.mkdir(parents=True, exist_ok=True)
     results = {"budget": budget, "seed": seed, "depth": depth, "table5": [], "table6": [],
@@ -97,13 +130,22 @@ def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred"
         for sc in scenarios:             # basic first: the transfer nets start from it
             if skip_depth:
                 depth_models[sc] = MODELS / f"depth_{sc}.npz"
-            else:
+            elif sc == "basic":          # v1, then v2 = v1 fine-tuned on its own frames
+                depth_models["basic_v1"] = _train_depth(sc, out, seed, budget)
                 depth_models[sc] = _train_depth(sc, out, seed, budget,
-                                                init_from=depth_models.get("basic"))
+                                                init_from=depth_models["basic_v1"],
+                                                name="basic_v2", data_from="basic")
+            else:                        # the transfer nets start from v1 (as shipped)
+                depth_models[sc] = _train_depth(sc, out, seed, budget,
+                                                init_from=depth_models["basic_v1"])
     models = {}
+    finetune = depth == "pred" and train_depth == "gt" and budget["finetune_steps"] > 0
     for spec in FAMILY if tables in ("5", "both") else ("d3rqn",):
         models[spec] = _train_agent(spec, out, seed, budget, train_depth,
                                     depth_models.get("basic"))
+        if finetune:
+            models[spec] = _train_agent(spec, out, seed, budget, "pred",
+                                        depth_models["basic"], init_model=models[spec])
 
     def run_eval(policies, scenario):
         est = load_depth_estimator(depth_models[scenario]) if depth == "pred" else None
