@@ -54,28 +54,35 @@ def add_arguments_collect(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="output .npz (default runs/depth/<scenario>/"
                    "train.npz)")
+    p.add_argument("--late-turns", type=float, default=0.0,
+                   help="share of the pilot's segments flown straight at obstacles, "
+                        "swerving late (0: the careful pilot)")
 
 
 def run_collect(args) -> int:
     from .data import collect, save_sequence
     out = Path(args.out or RUNS / args.scenario / "train.npz")
     t0 = time.time()
-    data = collect(args.scenario, args.frames, args.frames_per_flight, args.seed)
+    data = collect(args.scenario, args.frames, args.frames_per_flight, args.seed,
+                   late=args.late_turns)
     save_sequence(out, data, {"scenario": args.scenario, "seed": args.seed,
+                              "late_turns": args.late_turns,
                               "command": _command_line(args, "collect")})
     print(f"collect: {len(data['rgb'])} frames in {int(data['flight'].max()) + 1} flights "
           f"-> {out} ({time.time() - t0:.1f} s)")
     return 0
 
 
-def _ensure_data(path: Path, scenario: str, frames: int, seed: int, fpf: int = 50):
+def _ensure_data(path: Path, scenario: str, frames: int, seed: int, fpf: int = 50,
+                 late: float = 0.0):
     from .data import collect, load_sequence, save_sequence
     if not path.is_file():
-        data = collect(scenario, frames, fpf, seed)
-        save_sequence(path, data, {"scenario": scenario, "seed": seed,
+        data = collect(scenario, frames, fpf, seed, late=late)
+        extra = f" --late-turns {late}" if late else ""
+        save_sequence(path, data, {"scenario": scenario, "seed": seed, "late_turns": late,
                                    "command": f"python -m minid3rqn collect --scenario "
                                               f"{scenario} --frames {frames} --seed {seed} "
-                                              f"--out {path}"})
+                                              f"--out {path}{extra}"})
     return load_sequence(path)
 
 
@@ -87,6 +94,10 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frames", type=int, default=5000, help="training frames to collect")
     p.add_argument("--test-frames", type=int, default=500, help="held-out frames to collect")
+    p.add_argument("--late-turns", type=float, default=0.0,
+                   help="training frames: share of the pilot's segments flown straight at "
+                        "obstacles, swerving late (collect --late-turns); held-out frames "
+                        "always come from the careful pilot")
     p.add_argument("--iterations", type=int, default=d.iterations)
     p.add_argument("--batch-size", type=int, default=d.batch_size)
     p.add_argument("--lr", type=float, default=d.lr)
@@ -212,7 +223,8 @@ def run_train_depth(args) -> int:
     paths["dir"].mkdir(parents=True, exist_ok=True)
     cfg = config_from_args(args)
     t0 = time.time()
-    train = _ensure_data(paths["train"], args.scenario, args.frames, args.seed)
+    train = _ensure_data(paths["train"], args.scenario, args.frames, args.seed,
+                         late=args.late_turns)
     test = _ensure_data(paths["test"], args.scenario, args.test_frames,
                         args.seed + TEST_SEED_OFFSET)
     t_data = time.time() - t0

@@ -51,24 +51,42 @@ class ScriptedPilot:
     Among the safe ones (clearance >= ``margin``) it takes the one nearest a wandering
     preferred yaw rate, which is redrawn at random every few steps; when none is safe
     it takes the clearest.
+
+    ``late``: the share of those few-step segments flown as a *late turner*: straight
+    ahead, looking only ``late_horizon`` s (a random 1.0-1.6 s, 2-3 m) ahead with a
+    ``late_margin`` of 0.7 m, so it swerves only when an obstacle is close. A careful
+    pilot (``late`` = 0) turns away 5 m early, and its frames almost never show an
+    obstacle 1-2 m straight ahead, the view a Q-net must judge before a crash
+    (docs/depth.md, "Where the near pixels are").
     """
 
     def __init__(self, scene, rng: np.random.Generator, margin: float = 1.0,
-                 horizon: float = 2.4):
+                 horizon: float = 2.4, late: float = 0.0, late_margin: float = 0.7,
+                 late_horizon: tuple[float, float] = (1.0, 1.6)):
+        if not 0.0 <= late <= 1.0:
+            raise ValueError(f"ScriptedPilot: late must be a share in [0, 1]; got {late}")
         self.scene, self.rng, self.margin, self.horizon = scene, rng, margin, horizon
+        self.late, self.late_margin, self.late_horizon = late, late_margin, late_horizon
         self.candidates = np.linspace(-0.5, 0.5, 9)
         self.preferred, self.hold = 0.0, 0
+        self.segment = (margin, horizon)          # (margin, horizon) of this segment
 
     def __call__(self, pose) -> float:
         from ..world.distance import nearest_distance
         if self.hold <= 0:
             self.preferred = float(self.rng.choice([-0.5, -0.25, 0.0, 0.0, 0.25, 0.5]))
             self.hold = int(self.rng.integers(2, 8))
+            self.segment = (self.margin, self.horizon)
+            # (late = 0 draws nothing more: the careful pilot's flights stay as they were)
+            if self.late > 0 and self.rng.random() < self.late:
+                self.preferred = 0.0
+                self.segment = (self.late_margin, float(self.rng.uniform(*self.late_horizon)))
         self.hold -= 1
-        pts = np.stack([_arc_points(pose, w, self.horizon, 12) for w in self.candidates])
+        margin, horizon = self.segment
+        pts = np.stack([_arc_points(pose, w, horizon, 12) for w in self.candidates])
         clear = nearest_distance(self.scene, pts).min(axis=1)
         clear = np.where(self.scene.in_region(pts).all(axis=1), clear, -1.0)
-        safe = clear >= self.margin
+        safe = clear >= margin
         if safe.any():
             cost = np.abs(self.candidates - self.preferred) + 10.0 * ~safe
             return float(self.candidates[int(np.argmin(cost))])
@@ -83,11 +101,12 @@ def _render(scene, poses, camera):
     return np.asarray(rgb, dtype=np.uint8), np.asarray(depth, dtype=np.float32)
 
 
-def fly(scene, n_frames: int, rng: np.random.Generator) -> np.ndarray:
-    """One scripted flight of up to ``n_frames`` poses (fewer if it comes too close)."""
+def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0) -> np.ndarray:
+    """One scripted flight of up to ``n_frames`` poses (fewer if it comes too close);
+    ``late``: the pilot's share of late-turn segments (``ScriptedPilot``)."""
     from ..world.distance import nearest_distance, sample_start_pose
     from ..world.kinematics import integrate_arc
-    pilot = ScriptedPilot(scene, rng)
+    pilot = ScriptedPilot(scene, rng, late=late)
     pose = sample_start_pose(scene, rng)
     poses = [pose]
     while len(poses) < n_frames:
@@ -102,13 +121,14 @@ def fly(scene, n_frames: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: int = 50,
-            seed: int = 0, camera=None, progress: bool = True) -> dict:
+            seed: int = 0, camera=None, progress: bool = True, late: float = 0.0) -> dict:
     """Fly scripted flights in fresh scenes of ``scenario`` until ``n_frames`` frames.
 
     Flight f flies in ``make_scene(scenario, seed=seed * 100003 + f)``; flights shorter
     than 3 frames (no triplet) are dropped, so when the last 1-2 frames cannot make a
     flight of their own the sequence ends up to 2 frames short of ``n_frames``. Returns
-    the arrays of a sequence file.
+    the arrays of a sequence file. ``late``: the pilot's share of late-turn segments
+    (``ScriptedPilot``; 0, the default, is the careful pilot).
     """
     from ..world.camera import Camera
     from ..world.scenarios import make_scene
@@ -126,7 +146,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         bar = tqdm(total=n_frames, desc=f"collect {scenario}", unit="frame")
     while n_frames - total >= 3:        # a last flight of 1-2 frames would hold no triplet
         scene = make_scene(scenario, seed=seed * 100003 + f)
-        poses = fly(scene, min(frames_per_flight, n_frames - total), rng)
+        poses = fly(scene, min(frames_per_flight, n_frames - total), rng, late)
         f += 1
         if len(poses) < 3:
             continue
