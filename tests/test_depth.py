@@ -417,6 +417,28 @@ def test_collect_stops_when_the_remainder_cannot_make_a_triplet():
     assert np.all(np.bincount(data["flight"]) >= 3)
 
 
+def test_late_turning_pilot_shows_more_obstacles_close_ahead():
+    """The late turner flies at obstacles and swerves late, so more of its frames show an
+    obstacle under 2 m in the middle of the view than the careful pilot's; the careful
+    pilot (late = 0) is the default."""
+    from minid3rqn.world import Camera
+    cam = Camera(16, 52, 90.0)
+
+    def close_ahead(late):
+        d = collect("basic", n_frames=300, seed=3, progress=False, camera=cam, late=late)
+        centre = d["depth"][:, 4:12, 20:32].min(axis=(1, 2))
+        return (centre < 2.0).mean()
+
+    careful = close_ahead(0.0)
+    assert close_ahead(1.0) > careful + 0.03
+    data = collect("basic", n_frames=30, seed=3, progress=False, camera=cam)
+    np.testing.assert_array_equal(
+        data["pose"], collect("basic", n_frames=30, seed=3, progress=False, camera=cam,
+                              late=0.0)["pose"])
+    with pytest.raises(ValueError, match="late"):
+        collect("basic", n_frames=30, seed=3, progress=False, camera=cam, late=1.5)
+
+
 # -- the shipped depth models -----------------------------------------------------------------
 MODELS = __import__("pathlib").Path(__file__).resolve().parent.parent / "minid3rqn" / "models"
 
