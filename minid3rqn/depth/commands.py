@@ -57,6 +57,8 @@ def add_arguments_collect(p: argparse.ArgumentParser) -> None:
     p.add_argument("--late-turns", type=float, default=0.0,
                    help="share of the pilot's segments flown straight at obstacles, "
                         "swerving late (0: the careful pilot)")
+    p.add_argument("--frame-dt", type=float, default=0.4,
+                   help="seconds between frames (paper: 0.4)")
 
 
 def run_collect(args) -> int:
@@ -64,7 +66,7 @@ def run_collect(args) -> int:
     out = Path(args.out or RUNS / args.scenario / "train.npz")
     t0 = time.time()
     data = collect(args.scenario, args.frames, args.frames_per_flight, args.seed,
-                   late=args.late_turns)
+                   late=args.late_turns, frame_dt=args.frame_dt)
     save_sequence(out, data, {"scenario": args.scenario, "seed": args.seed,
                               "late_turns": args.late_turns,
                               "command": _command_line(args, "collect")})
@@ -74,11 +76,12 @@ def run_collect(args) -> int:
 
 
 def _ensure_data(path: Path, scenario: str, frames: int, seed: int, fpf: int = 50,
-                 late: float = 0.0):
+                 late: float = 0.0, frame_dt: float = 0.4):
     from .data import collect, load_sequence, save_sequence
     if not path.is_file():
-        data = collect(scenario, frames, fpf, seed, late=late)
-        extra = f" --late-turns {late}" if late else ""
+        data = collect(scenario, frames, fpf, seed, late=late, frame_dt=frame_dt)
+        extra = (f" --late-turns {late}" if late else "") + \
+            (f" --frame-dt {frame_dt}" if frame_dt != 0.4 else "")
         save_sequence(path, data, {"scenario": scenario, "seed": seed, "late_turns": late,
                                    "command": f"python -m minid3rqn collect --scenario "
                                               f"{scenario} --frames {frames} --seed {seed} "
@@ -98,6 +101,9 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
                    help="training frames: share of the pilot's segments flown straight at "
                         "obstacles, swerving late (collect --late-turns); held-out frames "
                         "always come from the careful pilot")
+    p.add_argument("--frame-dt", type=float, default=0.4,
+                   help="training frames: seconds between frames (collect --frame-dt; paper "
+                        "0.4); held-out frames always 0.4 s")
     p.add_argument("--iterations", type=int, default=d.iterations)
     p.add_argument("--batch-size", type=int, default=d.batch_size)
     p.add_argument("--lr", type=float, default=d.lr)
@@ -224,10 +230,16 @@ def run_train_depth(args) -> int:
     cfg = config_from_args(args)
     t0 = time.time()
     train = _ensure_data(paths["train"], args.scenario, args.frames, args.seed,
-                         late=args.late_turns)
+                         late=args.late_turns, frame_dt=args.frame_dt)
     test = _ensure_data(paths["test"], args.scenario, args.test_frames,
                         args.seed + TEST_SEED_OFFSET)
     t_data = time.time() - t0
+    if abs(train.step - cfg.loss.step) > 1e-6:
+        # Frames filmed closer together (collect --frame-dt): the known-speed term and
+        # PoseNet's starting forward motion follow the data's step.
+        if cfg.pose_init_forward == cfg.loss.step:
+            cfg.pose_init_forward = train.step
+        cfg.loss.step = train.step
     trainer = Trainer(train, cfg, checkpoint=paths["checkpoint"], resume=args.resume)
     if trainer.iteration:
         print(f"train-depth: resuming at iteration {trainer.iteration}")

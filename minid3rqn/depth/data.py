@@ -101,9 +101,11 @@ def _render(scene, poses, camera):
     return np.asarray(rgb, dtype=np.uint8), np.asarray(depth, dtype=np.float32)
 
 
-def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0) -> np.ndarray:
+def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0,
+        frame_dt: float = FRAME_DT) -> np.ndarray:
     """One scripted flight of up to ``n_frames`` poses (fewer if it comes too close);
-    ``late``: the pilot's share of late-turn segments (``ScriptedPilot``)."""
+    ``late``: the pilot's share of late-turn segments (``ScriptedPilot``); ``frame_dt``:
+    seconds between frames (the pilot decides at every frame)."""
     from ..world.distance import nearest_distance, sample_start_pose
     from ..world.kinematics import integrate_arc
     pilot = ScriptedPilot(scene, rng, late=late)
@@ -112,24 +114,29 @@ def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0) -> np
     while len(poses) < n_frames:
         w = pilot(pose)
         # Check clearance along the step, every 0.1 m.
-        path = _arc_points(pose, w, FRAME_DT, 8)
+        path = _arc_points(pose, w, frame_dt, 8)
         if nearest_distance(scene, path).min() < SAFE:
             break
-        pose = integrate_arc(pose, SPEED, w, FRAME_DT)
+        pose = integrate_arc(pose, SPEED, w, frame_dt)
         poses.append(pose)
     return np.stack(poses)
 
 
 def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: int = 50,
-            seed: int = 0, camera=None, progress: bool = True, late: float = 0.0) -> dict:
+            seed: int = 0, camera=None, progress: bool = True, late: float = 0.0,
+            frame_dt: float = FRAME_DT) -> dict:
     """Fly scripted flights in fresh scenes of ``scenario`` until ``n_frames`` frames.
 
     Flight f flies in ``make_scene(scenario, seed=seed * 100003 + f)``; flights shorter
     than 3 frames (no triplet) are dropped, so when the last 1-2 frames cannot make a
     flight of their own the sequence ends up to 2 frames short of ``n_frames``. Returns
     the arrays of a sequence file. ``late``: the pilot's share of late-turn segments
-    (``ScriptedPilot``; 0, the default, is the careful pilot).
+    (``ScriptedPilot``; 0, the default, is the careful pilot). ``frame_dt``: seconds
+    between frames (paper: 0.4 s; a camera films faster than the pilot decides, and
+    a shorter step means smaller image motion for view synthesis: docs/depth.md).
     """
+    if not 0.0 < frame_dt <= 2.0:
+        raise ValueError(f"collect: frame_dt must be in (0, 2] s; got {frame_dt}")
     from ..world.camera import Camera
     from ..world.scenarios import make_scene
     if n_frames < 3:
@@ -146,7 +153,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         bar = tqdm(total=n_frames, desc=f"collect {scenario}", unit="frame")
     while n_frames - total >= 3:        # a last flight of 1-2 frames would hold no triplet
         scene = make_scene(scenario, seed=seed * 100003 + f)
-        poses = fly(scene, min(frames_per_flight, n_frames - total), rng, late)
+        poses = fly(scene, min(frames_per_flight, n_frames - total), rng, late, frame_dt)
         f += 1
         if len(poses) < 3:
             continue
@@ -163,14 +170,15 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         bar.close()
     return {"rgb": np.concatenate(rgb), "depth": np.concatenate(depth),
             "pose": np.concatenate(pose), "flight": np.concatenate(flight),
-            "K": camera.K, "camera": (camera.height, camera.width, camera.hfov_deg)}
+            "K": camera.K, "camera": (camera.height, camera.width, camera.hfov_deg),
+            "dt": frame_dt}
 
 
 def save_sequence(path, data: dict, metadata: dict | None = None) -> Path:
     arrays = {k: data[k] for k in ("rgb", "depth", "pose", "flight", "K")}
     meta = dict(metadata or {})
     meta.setdefault("speed", SPEED)
-    meta.setdefault("dt", FRAME_DT)
+    meta.setdefault("dt", data.get("dt", FRAME_DT))
     meta["camera"] = list(data.get("camera", ()))
     return save_npz(path, arrays, meta)
 
@@ -218,6 +226,13 @@ class Sequence:
     @property
     def shape(self) -> tuple[int, int]:
         return self.rgb.shape[1], self.rgb.shape[2]
+
+    @property
+    def step(self) -> float:
+        """Metres flown between consecutive frames: speed x dt from the file's metadata
+        (2 m/s x 0.4 s = 0.8 m, the paper's, when it says nothing)."""
+        meta = self.meta or {}
+        return float(meta.get("speed", SPEED)) * float(meta.get("dt", FRAME_DT))
 
     def triplet_indices(self) -> np.ndarray:
         return triplet_indices(self.flight)

@@ -98,6 +98,11 @@ class Trainer:
             raise TypeError(f"Trainer: sequence must be a data.Sequence; got "
                             f"{type(sequence).__name__}")
         self.seq, self.cfg = sequence, cfg
+        if abs(cfg.loss.step - sequence.step) > 1e-6:
+            raise ValueError(f"Trainer: the known-speed term expects {cfg.loss.step} m between "
+                             f"frames (LossConfig.step) but the sequence moves "
+                             f"{sequence.step} m (speed x dt in its metadata); set "
+                             f"LossConfig.step to the sequence's step")
         self.targets = sequence.triplet_indices()
         if len(self.targets) == 0:
             raise ValueError("Trainer: the sequence has no triplet (three consecutive frames "
@@ -265,7 +270,7 @@ class Trainer:
 
     # -- the metric scale from the known flight speed ----------------------------------
     def speed_scale(self, max_triplets: int = 400) -> float:
-        return speed_scale(self.pose, self.seq, max_triplets)
+        return speed_scale(self.pose, self.seq, max_triplets, step=self.seq.step)
 
 
 def speed_scale(posenet: PoseNet, seq: Sequence, max_triplets: int = 400,
