@@ -391,6 +391,19 @@ def test_errors_by_depth_locates_a_biased_band():
         errors_by_depth(pred[:1], gt)
 
 
+def test_errors_by_depth_separates_the_centre_from_the_sides():
+    from minid3rqn.depth.evaluate import errors_by_depth
+    gt = np.full((2, 4, 16), 1.5)
+    pred = gt.copy()
+    pred[..., 4:12] *= 2.0                            # the middle half seen twice as far
+    kw = {"median_scaling": False}
+    assert errors_by_depth(pred, gt, columns="centre", **kw)[0]["signed_rel"] == pytest.approx(1.0)
+    assert errors_by_depth(pred, gt, columns="sides", **kw)[0]["signed_rel"] == pytest.approx(0.0)
+    assert errors_by_depth(pred, gt, **kw)[0]["signed_rel"] == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="columns"):
+        errors_by_depth(pred, gt, columns="left")
+
+
 def test_errors_by_depth_in_the_models_own_metric_scale():
     """A prediction 20 % too far everywhere: median scaling hides it, the metric-scale
     mode shows it in every bin; both modes agree with depth_metrics' alignment."""
@@ -415,6 +428,23 @@ def test_collect_stops_when_the_remainder_cannot_make_a_triplet():
                    camera=Camera(8, 16, 90.0))
     assert 6 <= len(data["rgb"]) <= 8
     assert np.all(np.bincount(data["flight"]) >= 3)
+
+
+def test_frames_filmed_closer_together(tmp_path):
+    """collect --frame-dt: the drone moves speed x dt between frames, the file says so,
+    and a trainer whose known-speed term expects another step refuses the data."""
+    from minid3rqn.depth.losses import LossConfig
+    data = collect("basic", n_frames=12, frames_per_flight=12, seed=5, camera=TINY,
+                   progress=False, frame_dt=0.2)
+    seq = load_sequence(save_sequence(tmp_path / "s.npz", data))
+    assert seq.step == pytest.approx(0.4)
+    moved = np.linalg.norm(np.diff(seq.pose[:, :2], axis=0), axis=1)
+    np.testing.assert_allclose(moved, 0.4, rtol=0.02)        # arcs: chord <= arc length
+    with pytest.raises(ValueError, match="step"):
+        Trainer(seq, _tiny_cfg(1))
+    Trainer(seq, _tiny_cfg(1, loss=LossConfig(step=0.4)))
+    with pytest.raises(ValueError, match="frame_dt"):
+        collect("basic", n_frames=12, camera=TINY, progress=False, frame_dt=0.0)
 
 
 def test_late_turning_pilot_shows_more_obstacles_close_ahead():

@@ -288,6 +288,9 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--metric-scale", action="store_true",
                    help="with --by-depth: judge the model's own metric scale (from the "
                         "flight speed) instead of per-image median scaling")
+    p.add_argument("--columns", default="all", choices=["all", "centre", "sides"],
+                   help="with --by-depth: only the middle half of the image width (what "
+                        "lies ahead) or the outer quarters")
 
 
 def run_eval_depth(args) -> int:
@@ -301,9 +304,10 @@ def run_eval_depth(args) -> int:
     if args.by_depth:
         from .evaluate import errors_by_depth
         rows = errors_by_depth(estimator.predict(test.rgb), test.depth,
-                               median_scaling=not args.metric_scale)
+                               median_scaling=not args.metric_scale, columns=args.columns)
         print("GT depth (m)   share   abs rel   signed rel (> 0: too far)   "
-              + ("[the model's metric scale]" if args.metric_scale else "[median-scaled]"))
+              + ("[the model's metric scale]" if args.metric_scale else "[median-scaled]")
+              + ("" if args.columns == "all" else f"  [{args.columns} columns]"))
         for r in rows:
             print(f"{r['from_m']:4.0f} - {r['to_m']:<4.0f}    {r['share']:.2f}    "
                   f"{r['abs_rel']:.3f}     {r['signed_rel']:+.3f}")

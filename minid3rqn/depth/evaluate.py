@@ -184,12 +184,27 @@ def depth_metrics(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
 DEPTH_BINS = (0.0, 2.0, 4.0, 7.0, 12.0, 50.0)
 
 
-def errors_by_depth(pred, gt, bins=DEPTH_BINS, median_scaling: bool = True) -> list[dict]:
+COLUMNS = ("all", "centre", "sides")
+
+
+def errors_by_depth(pred, gt, bins=DEPTH_BINS, median_scaling: bool = True,
+                    columns: str = "all") -> list[dict]:
     """Where the errors are: per GT-depth bin, the share of pixels, the mean abs rel and
     the mean signed relative error (pred - gt) / gt (> 0: too far), after the same
     alignment as ``depth_metrics`` (per-image median scaling, or with
-    ``median_scaling=False`` the model's own metric scale). (N, H, W) inputs."""
+    ``median_scaling=False`` the model's own metric scale). (N, H, W) inputs.
+
+    ``columns``: "all", "centre" (the middle half of the image width: what lies ahead,
+    where a collision comes from) or "sides" (the outer quarters: what the drone passes).
+    Shares are of the pixels in those columns."""
+    if columns not in COLUMNS:
+        raise ValueError(f"errors_by_depth: columns must be one of {COLUMNS}; got {columns!r}")
     p, g, ok = align_to_gt(pred, gt, median_scaling=median_scaling, name="errors_by_depth")
+    if columns != "all":
+        w = g.shape[-1]
+        centre = np.zeros(w, bool)
+        centre[w // 4: w - w // 4] = True
+        ok = ok & (centre if columns == "centre" else ~centre)
     rel = (p - g) / np.where(ok, g, 1.0)
     out = []
     for lo, hi in zip(bins[:-1], bins[1:]):
