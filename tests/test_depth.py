@@ -365,9 +365,9 @@ def test_gyro_yaw_mode_warps_with_the_gyro(tiny_sequence):
     seen = {}
     real = train_module.view_synthesis_loss
 
-    def spy(target, sources, disps, poses, K, config, gyro=None):
+    def spy(target, sources, disps, poses, K, config, gyro=None, **kw):
         seen["poses"] = poses.data.copy()
-        return real(target, sources, disps, poses, K, config, gyro)
+        return real(target, sources, disps, poses, K, config, gyro, **kw)
 
     train_module.view_synthesis_loss = spy
     try:
@@ -428,6 +428,37 @@ def test_collect_stops_when_the_remainder_cannot_make_a_triplet():
                    camera=Camera(8, 16, 90.0))
     assert 6 <= len(data["rgb"]) <= 8
     assert np.all(np.bincount(data["flight"]) >= 3)
+
+
+def test_two_baselines_of_sources(tiny_sequence):
+    """--source-offsets -2,-1,1,2: targets keep all four sources inside their flight,
+    PoseNet reads four sources and starts at the right forward motions, and the
+    known-speed term expects twice the step from the frames two away."""
+    from minid3rqn.depth.data import target_indices
+    assert target_indices([0, 0, 0, 0, 0, 1, 1, 1, 1, 1], (-2, -1, 1, 2)).tolist() == [2, 7]
+    assert target_indices([0, 0, 0, 1], (1,)).tolist() == [0, 1]
+    with pytest.raises(ValueError, match="offsets"):
+        target_indices([0, 0, 0], (0, 1))
+    offsets = (-2, -1, 1, 2)
+    trainer = Trainer(tiny_sequence, _tiny_cfg(1, source_offsets=offsets))
+    assert trainer.pose.n_sources == 4
+    idx = tiny_sequence.target_indices(offsets)
+    assert all(len(set(tiny_sequence.flight[t + np.array([0, *offsets])])) == 1 for t in idx)
+    target, sources = tiny_sequence.batch(idx[:2], offsets)
+    with ag.no_grad():
+        tz = trainer.pose(target, sources).data[..., 2]
+    np.testing.assert_allclose(tz.mean(axis=0), [1.6, 0.8, -0.8, -1.6], atol=0.2)
+    info = trainer.step()
+    assert np.isfinite(info["loss"])
+    # the speed term is zero when |t_s| = |o_s| x step
+    n, h, w = 1, 8, 16
+    img = np.random.default_rng(0).random((n, 3, h, w)).astype(np.float32)
+    poses = np.zeros((n, 2, 6), np.float32)
+    poses[0, :, 2] = [1.6, -0.8]
+    disps = [Tensor(np.full((n, 1, h, w), 0.2, np.float32))]
+    _, info = view_synthesis_loss(img, [img, img], disps, poses, _k(h, w),
+                                  LossConfig(step=0.8), source_steps=[2, 1])
+    assert info["speed"] == pytest.approx(0.0, abs=1e-6)
 
 
 def test_frames_filmed_closer_together(tmp_path):

@@ -111,6 +111,9 @@ class CountingPolicy:
     def reset(self, n):
         self.inner.reset(n)
 
+    def reseed(self, seed):
+        self.inner.reseed(seed)
+
     def act(self, obs):
         a = self.inner.act(obs)
         live = np.asarray(obs.get("active", np.ones(len(a), bool)), bool)

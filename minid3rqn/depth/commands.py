@@ -136,6 +136,10 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
                    help="PoseNet rotation output scale (default: the translation's, 0.1)")
     p.add_argument("--unmasked-weight", type=float, default=d.loss.unmasked_weight,
                    help="weight of an unmasked photometric term beside the auto-mask")
+    p.add_argument("--source-offsets", default="-1,1",
+                   help="frames the target is synthesised from, as offsets from it: -1,1 "
+                        "(previous and next: SfMLearner) or e.g. -2,-1,1,2 (two baselines; "
+                        "the per-pixel minimum picks the one that explains each pixel)")
     p.add_argument("--full-res", action="store_true",
                    help="monodepth2's loss: upsample every scale's disparity and warp the "
                         "full-size images (default: SfMLearner's downsampled images)")
@@ -159,6 +163,16 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _offsets(text: str) -> tuple[int, ...]:
+    try:
+        offsets = tuple(int(v) for v in str(text).split(","))
+    except ValueError:
+        raise ValueError(f"train-depth: --source-offsets must be comma-separated integers "
+                         f"such as -1,1; got {text!r}") from None
+    from .data import _check_offsets
+    return _check_offsets(offsets)
+
+
 def config_from_args(args):
     from .losses import LossConfig
     from .train import TrainConfig
@@ -176,7 +190,8 @@ def config_from_args(args):
                        seed=args.seed, checkpoint_every=args.checkpoint_every,
                        flip=not args.no_flip, pose_dof=args.pose_dof,
                        init_disp=args.init_disp, pose_rot_scale=args.pose_rot_scale,
-                       pose_init_forward=init, loss=loss)
+                       pose_init_forward=init, loss=loss,
+                       source_offsets=_offsets(args.source_offsets))
 
 
 class _LearningCurve:

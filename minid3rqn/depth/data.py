@@ -249,18 +249,26 @@ class Sequence:
                              f"consecutive frames of one flight")
         return self.rgb[t - 1], self.rgb[t], self.rgb[t + 1]
 
-    def batch(self, targets) -> tuple[np.ndarray, list[np.ndarray]]:
-        """Targets (B,) -> (target (B,3,H,W), [previous, next]) float32 in [0, 1]."""
+    def target_indices(self, offsets=(-1, 1)) -> np.ndarray:
+        """Frames t whose sources t + o (o in ``offsets``) all belong to t's flight."""
+        return target_indices(self.flight, offsets)
+
+    def batch(self, targets, offsets=(-1, 1)) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Targets (B,) -> (target (B,3,H,W), [the frame t + o for o in ``offsets``])
+        float32 in [0, 1]; the default offsets give [previous, next]."""
         targets = np.asarray(targets)
+        offsets = _check_offsets(offsets)
         ids = self.flight[targets]
-        if targets.min() < 1 or targets.max() >= len(self) - 1:
-            raise IndexError("Sequence.batch: every target needs a previous and a next frame")
-        if not (np.all(self.flight[targets - 1] == ids) and np.all(self.flight[targets + 1] == ids)):
-            bad = targets[(self.flight[targets - 1] != ids) | (self.flight[targets + 1] != ids)]
-            raise ValueError(f"Sequence.batch: targets {bad.tolist()} have neighbours from other "
-                             f"flights; use triplet_indices() to pick targets")
+        lo, hi = min(min(offsets), 0), max(max(offsets), 0)
+        if targets.min() + lo < 0 or targets.max() + hi >= len(self):
+            raise IndexError(f"Sequence.batch: every target needs its sources at offsets "
+                             f"{list(offsets)} inside the sequence")
+        same = np.all([self.flight[targets + o] == ids for o in offsets], axis=0)
+        if not same.all():
+            raise ValueError(f"Sequence.batch: targets {targets[~same].tolist()} have sources "
+                             f"from other flights; use target_indices() to pick targets")
         f = lambda idx: (self.rgb[idx].transpose(0, 3, 1, 2).astype(np.float32) / 255.0)
-        return f(targets), [f(targets - 1), f(targets + 1)]
+        return f(targets), [f(targets + o) for o in offsets]
 
     def select_flights(self, flights) -> "Sequence":
         keep = np.isin(self.flight, np.asarray(flights))
@@ -269,13 +277,29 @@ class Sequence:
                         None if self.pose is None else self.pose[keep], self.meta)
 
 
+def _check_offsets(offsets) -> tuple[int, ...]:
+    offsets = tuple(int(o) for o in offsets)
+    if not offsets or 0 in offsets or len(set(offsets)) != len(offsets):
+        raise ValueError(f"source offsets must be distinct non-zero frame offsets; got "
+                         f"{list(offsets)}")
+    return offsets
+
+
+def target_indices(flight, offsets=(-1, 1)) -> np.ndarray:
+    """Indices t such that every frame t + o (o in ``offsets``) belongs to t's flight."""
+    flight = np.asarray(flight)
+    offsets = _check_offsets(offsets)
+    lo, hi = -min(min(offsets), 0), max(max(offsets), 0)
+    if len(flight) <= lo + hi:
+        return np.zeros(0, dtype=np.int64)
+    t = np.arange(lo, len(flight) - hi)
+    same = np.all([flight[t + o] == flight[t] for o in offsets], axis=0)
+    return t[same]
+
+
 def triplet_indices(flight) -> np.ndarray:
     """Indices t whose frames t-1, t, t+1 all belong to the same flight."""
-    flight = np.asarray(flight)
-    if len(flight) < 3:
-        return np.zeros(0, dtype=np.int64)
-    same = (flight[1:-1] == flight[:-2]) & (flight[1:-1] == flight[2:])
-    return np.flatnonzero(same) + 1
+    return target_indices(flight, (-1, 1))
 
 
 def load_sequence(path) -> Sequence:
@@ -289,4 +313,5 @@ def load_sequence(path) -> Sequence:
 
 
 __all__ = ["SPEED", "FRAME_DT", "ScriptedPilot", "fly", "collect", "save_sequence",
+           "target_indices",
            "Sequence", "triplet_indices", "load_sequence"]

@@ -216,10 +216,14 @@ def errors_by_depth(pred, gt, bins=DEPTH_BINS, median_scaling: bool = True,
 
 
 def pose_errors(posenet, seq: Sequence, max_triplets: int = 500) -> dict:
-    """Translation (scale-aligned per snippet, metres) and rotation (degrees) errors."""
+    """Translation (scale-aligned per snippet, metres) and rotation (degrees) errors of a
+    PoseNet of the (previous, next) sources."""
     from ..world.geometry import relative_transform
     if seq.pose is None:
         raise ValueError("pose_errors: the sequence has no GT poses")
+    if posenet.n_sources != 2:
+        raise ValueError(f"pose_errors: needs a PoseNet of the previous and next frames; "
+                         f"this one reads {posenet.n_sources} sources")
     idx = seq.triplet_indices()
     if len(idx) > max_triplets:
         idx = idx[np.linspace(0, len(idx) - 1, max_triplets).astype(int)]
@@ -259,7 +263,11 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
     out.update({f"{k}_speed_scale": v for k, v in
                 depth_metrics(pred, gt, median_scaling=False).items()})
     if posenet is not None and seq.pose is not None:
-        out.update(pose_errors(posenet, seq))
+        if posenet.n_sources == 2:
+            out.update(pose_errors(posenet, seq))
+        else:      # a PoseNet of other sources (--source-offsets) has no GT to meet here
+            out.update({k: float("nan") for k in ("trans_err_m", "trans_err_rel",
+                                                  "rot_err_deg")})
     return out
 
 

@@ -20,7 +20,8 @@ at scales i = 0..n-1 and the predicted poses T_{t->s}:
                   d* = disp_i / mean(disp_i) (mean-normalised, so shrinking the
                   disparity cannot cheat), I the target at scale i; edge-aware weights
                   e^{-|grad I|} are 1 when ``edge_aware`` is False   smoothness_loss
-    L_speed     = mean_{n,s} | |t_{t->s}| - v dt |   (optional, weight mu: the drone's
+    L_speed     = mean_{n,s} | |t_{t->s}| - k_s v dt |  (k_s frames between t and s;
+                  optional, weight mu: the drone's
                   known speed, 2 m/s x 0.4 s = 0.8 m between frames, as PackNet-SfM's
                   velocity supervision; it fixes the scale to metres and speeds up
                   the pose; it reads no ground truth)
@@ -195,7 +196,7 @@ def _photometric_term(target, sources, depth, T, K, cfg):
 
 
 def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | None = None,
-                        gyro=None):
+                        gyro=None, source_steps=None):
     """L = L_photo + lambda L_smooth (module docstring) for one batch.
 
     Args:
@@ -206,6 +207,8 @@ def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | N
         K: (3, 3) intrinsics of the (H, W) images.
         gyro: (N, S) yaw (rotation about the camera's vertical axis, ry) of T_{t->s} as
             the drone's rate gyro measures it; used when ``config.gyro_weight`` > 0.
+        source_steps: (S,) frames between the target and each source (default all 1):
+            the known-speed term expects ``config.step`` times that.
 
     Returns:
         (loss, info): a scalar Tensor and a dict of floats (photo, smooth, mask).
@@ -266,7 +269,14 @@ def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | N
     if cfg.speed_weight > 0:
         t = crop(poses, (slice(None), slice(None), slice(0, 3)))
         norm = ag.sqrt(ag.sum(t * t, axis=2) + 1e-12)
-        speed = ag.mean(ag.abs(norm - cfg.step))
+        if source_steps is None:
+            expected = cfg.step
+        else:
+            expected = cfg.step * np.asarray(source_steps, dtype=poses.dtype)
+            if expected.shape != (s_count,):
+                raise ValueError(f"view_synthesis_loss: source_steps needs one entry per "
+                                 f"source ({s_count}); got shape {expected.shape}")
+        speed = ag.mean(ag.abs(norm - expected))
         loss = loss + speed * cfg.speed_weight
         info["speed"] = float(speed.data)
     if cfg.gyro_weight > 0:

@@ -64,11 +64,13 @@ class TrainConfig:
     gt_pose: bool = False           # ablation: warp with the GT relative poses, not PoseNet's
     gyro_noise: float = 0.005       # rad: std of the simulated gyro's yaw error per frame pair
     gyro_yaw: bool = False          # warp with the gyro's yaw in place of PoseNet's
+    source_offsets: tuple = (-1, 1)  # the sources of target t: frames t + o (SfMLearner: -1, 1)
     loss: LossConfig = field(default_factory=LossConfig)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["encoder"], d["decoder"] = list(self.encoder), list(self.decoder)
+        d["source_offsets"] = list(self.source_offsets)
         return d
 
     @staticmethod
@@ -76,16 +78,20 @@ class TrainConfig:
         d = dict(d)
         d["loss"] = LossConfig(**d.get("loss", {}))
         d["encoder"], d["decoder"] = tuple(d["encoder"]), tuple(d["decoder"])
+        d["source_offsets"] = tuple(d.get("source_offsets", (-1, 1)))
         return TrainConfig(**d)
 
 
 def build_nets(cfg: TrainConfig) -> tuple[DispNet, PoseNet]:
     rng = np.random.default_rng(cfg.seed)
     disp = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales, init_disp=cfg.init_disp, rng=rng)
-    pose = PoseNet(n_sources=2, pose_scale=cfg.pose_scale, head_gain=cfg.pose_head_gain,
-                   dof=cfg.pose_dof, rng=rng, rot_scale=cfg.pose_rot_scale,
+    # T_{t->s} of a source o frames later moves the camera o steps forward: its
+    # translation starts at tz = -o x pose_init_forward (+0.8 m for the previous frame).
+    pose = PoseNet(n_sources=len(cfg.source_offsets), pose_scale=cfg.pose_scale,
+                   head_gain=cfg.pose_head_gain, dof=cfg.pose_dof, rng=rng,
+                   rot_scale=cfg.pose_rot_scale,
                    init_tz=None if cfg.pose_init_forward is None else
-                   (cfg.pose_init_forward, -cfg.pose_init_forward))
+                   tuple(-o * cfg.pose_init_forward for o in cfg.source_offsets))
     return disp, pose
 
 
@@ -103,10 +109,12 @@ class Trainer:
                              f"frames (LossConfig.step) but the sequence moves "
                              f"{sequence.step} m (speed x dt in its metadata); set "
                              f"LossConfig.step to the sequence's step")
-        self.targets = sequence.triplet_indices()
+        self.offsets = tuple(cfg.source_offsets)
+        self.targets = sequence.target_indices(self.offsets)
         if len(self.targets) == 0:
-            raise ValueError("Trainer: the sequence has no triplet (three consecutive frames "
-                             "of one flight); collect longer flights")
+            raise ValueError(f"Trainer: the sequence has no triplet (a target with its sources "
+                             f"at offsets {list(self.offsets)} in one flight); collect longer "
+                             f"flights")
         h, w = sequence.shape
         if h % 2 ** (cfg.n_scales - 1) or w % 2 ** (cfg.n_scales - 1):
             raise ValueError(f"Trainer: image size {h}x{w} must be divisible by "
@@ -124,7 +132,7 @@ class Trainer:
     # -- one step ------------------------------------------------------------------
     def sample_batch(self):
         idx = self.rng.choice(self.targets, size=self.cfg.batch_size, replace=True)
-        target, sources = self.seq.batch(idx)
+        target, sources = self.seq.batch(idx, self.offsets)
         K = self.seq.K
         if self.cfg.flip:
             flip = self.rng.random(self.cfg.batch_size) < 0.5
@@ -136,13 +144,14 @@ class Trainer:
         return np.ascontiguousarray(target), [np.ascontiguousarray(s) for s in sources], K
 
     def gt_pose_vectors(self, idx, flip) -> np.ndarray:
-        """Ablation only: the GT T_{t->s} of targets ``idx`` as (B, 2, 6) pose vectors,
-        mirrored where the triplet was flipped (M T M with M = diag(-1, 1, 1, 1))."""
+        """The GT T_{t->s} of targets ``idx`` as (B, S, 6) pose vectors, mirrored where the
+        triplet was flipped (M T M with M = diag(-1, 1, 1, 1)); for the GT-pose ablation
+        and the gyro's yaw."""
         if self.seq.pose is None:
             raise ValueError("train-depth: gt_pose needs a sequence with GT poses")
         M = np.diag([-1.0, 1.0, 1.0, 1.0])
         out = []
-        for offset in (-1, 1):
+        for offset in self.offsets:
             T = relative_transform(self.seq.pose[idx], self.seq.pose[idx + offset])
             T = np.where(flip[:, None, None], M @ T @ M, T)
             out.append(matrix_to_pose_vec(T))
@@ -151,7 +160,7 @@ class Trainer:
     def gyro_yaws(self, idx, flip) -> np.ndarray:
         """The yaw between each target and its sources as a rate gyro reports it: the true
         yaw change (ry of T_{t->s}, mirrored with the image) plus Gaussian noise of
-        ``gyro_noise`` rad. (B, 2)."""
+        ``gyro_noise`` rad. (B, S)."""
         yaw = self.gt_pose_vectors(idx, flip)[..., 4]
         return (yaw + self.rng.normal(0.0, self.cfg.gyro_noise, yaw.shape)).astype(np.float32)
 
@@ -182,7 +191,8 @@ class Trainer:
                 raise FloatingPointError(
                     f"train-depth: the predicted {name} holds NaN/inf at iteration "
                     f"{self.iteration + 1}, so the loss would be NaN; try a smaller --lr")
-        loss, info = view_synthesis_loss(target, sources, disps, poses, K, self.cfg.loss, gyro)
+        loss, info = view_synthesis_loss(target, sources, disps, poses, K, self.cfg.loss, gyro,
+                                         source_steps=np.abs(self.offsets))
         value = float(loss.data)
         if not math.isfinite(value):
             raise FloatingPointError(
@@ -270,26 +280,29 @@ class Trainer:
 
     # -- the metric scale from the known flight speed ----------------------------------
     def speed_scale(self, max_triplets: int = 400) -> float:
-        return speed_scale(self.pose, self.seq, max_triplets, step=self.seq.step)
+        return speed_scale(self.pose, self.seq, max_triplets, step=self.seq.step,
+                           offsets=self.offsets)
 
 
 def speed_scale(posenet: PoseNet, seq: Sequence, max_triplets: int = 400,
-                step: float = SPEED * FRAME_DT) -> float:
-    """scale = step / mean |t_pred| over (up to ``max_triplets``) triplets, both sources.
+                step: float = SPEED * FRAME_DT, offsets=(-1, 1)) -> float:
+    """scale = step / mean (|t_pred| / |o|) over (up to ``max_triplets``) targets and all
+    their sources (o frames away: o steps flown).
 
     ``step`` is the distance flown between frames (known from the drone's speed, not
     from ground truth). Multiplying the network's depth (1 / disp) by this scale gives
     metres.
     """
-    idx = seq.triplet_indices()
+    idx = seq.target_indices(offsets)
     if len(idx) > max_triplets:
         idx = idx[np.linspace(0, len(idx) - 1, max_triplets).astype(int)]
+    per_step = np.abs(np.asarray(offsets, dtype=np.float64))
     norms = []
     with ag.no_grad():
         for k in range(0, len(idx), 64):
-            target, sources = seq.batch(idx[k:k + 64])
+            target, sources = seq.batch(idx[k:k + 64], offsets)
             poses = posenet(target, sources).data
-            norms.append(np.linalg.norm(poses[..., :3], axis=-1).ravel())
+            norms.append((np.linalg.norm(poses[..., :3], axis=-1) / per_step).ravel())
     mean = float(np.mean(np.concatenate(norms)))
     if not mean > 0:
         raise FloatingPointError("speed_scale: PoseNet predicts no motion at all")

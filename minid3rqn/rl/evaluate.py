@@ -105,7 +105,9 @@ def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsCo
     """Steps survived by the ``n`` flights of one chunk (world seed ``child``)."""
     # A policy with a random generator (Random, an epsilon-greedy Q-net) draws from one
     # seeded by the chunk: a chunk's result is the same in any process, in any order.
-    policy.reseed((child, 0x5EED))
+    # (A duck-typed policy without ``reseed`` keeps its own generator.)
+    if hasattr(policy, "reseed"):
+        policy.reseed((child, 0x5EED))
     flights = Flights(scenario, n, seed=child, config=cfg, depth=depth,
                       depth_estimator=depth_estimator, autoreset=False)
     return run_flights(policy, flights, max_steps)
