@@ -18,6 +18,7 @@ import math
 import multiprocessing as mp
 import time
 import warnings
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -113,7 +114,8 @@ def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsCo
     return run_flights(policy, flights, max_steps)
 
 
-_FORKED = None       # what a forked worker process flies (set just before the fork)
+_FORKED = None       # what the chunks are flown with (set for the length of one evaluation,
+                     # so forked worker processes inherit it instead of unpickling it)
 
 
 def _fly_chunk_forked(task):
@@ -154,25 +156,20 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
         from tqdm import tqdm
         bar = tqdm(total=n_flights, unit="flight", desc=f"eval {policy.name} {scenario}",
                    dynamic_ncols=True, leave=False)
+    global _FORKED
+    _FORKED = (policy, scenario, cfg, depth, depth_estimator, max_steps)
     survived = []
-    if workers == 1:
-        for n, child in tasks:
-            survived.append(_fly_chunk(policy, scenario, n, child, cfg, depth,
-                                       depth_estimator, max_steps))
-            if bar is not None:
-                bar.update(n)
-    else:
-        global _FORKED
-        _FORKED = (policy, scenario, cfg, depth, depth_estimator, max_steps)
-        try:
-            with mp.get_context("fork").Pool(workers) as pool:
-                # imap keeps the chunks' order, so the result is the one-process one
-                for (n, _), steps in zip(tasks, pool.imap(_fly_chunk_forked, tasks)):
-                    survived.append(steps)
-                    if bar is not None:
-                        bar.update(n)
-        finally:
-            _FORKED = None
+    try:
+        with (mp.get_context("fork").Pool(workers) if workers > 1 else nullcontext()) as pool:
+            # imap keeps the chunks' order, so the result is the one-process one
+            runs = map(_fly_chunk_forked, tasks) if pool is None else \
+                pool.imap(_fly_chunk_forked, tasks)
+            for (n, _), steps in zip(tasks, runs):
+                survived.append(steps)
+                if bar is not None:
+                    bar.update(n)
+    finally:
+        _FORKED = None
     if bar is not None:
         bar.close()
     survived = np.concatenate(survived)
