@@ -1,9 +1,10 @@
 """``python -m minid3rqn reproduce``: Tables 5 and 6 end to end.
 
-    1. depth: train a DispNet on basic (v1), fine-tune it once more on the same frames
-       (v2, the one the Q-nets read in basic), and fine-tune v1 in channel,
-       intersections and corners (the shipped recipe, docs/depth.md section 7), unless
-       ``--skip-depth`` (then the shipped ``models/depth_<scenario>.npz``);
+    1. depth: train a DispNet on basic (v1), fine-tune it with the full-resolution loss
+       on a late-turning pilot's frames (the one the Q-nets read in basic), and
+       fine-tune v1 in channel, intersections and corners (the shipped recipe,
+       docs/depth.md section 7), unless ``--skip-depth`` (then the shipped
+       ``models/depth_<scenario>.npz``);
     2. Table 5: train the Q-family on ``basic`` on ground-truth depth (same budget and
        seed for every model: D3RQN, DDRQN, D3QN, DDQN, and the non-recurrent pair with
        5 stacked frames; the shipped D3RQN's 240k-transition recipe), then, for
@@ -51,13 +52,17 @@ QUICK = dict(steps=3_000, updates_per_step=4.0, eps_decay=2_500, learning_starts
 # (iterations, step at).
 DEPTH_RECIPE = ["--gyro-yaw", "--init-disp", "0.1", "--unmasked-weight", "0.1"]
 DEPTH_SCHEDULE = {"basic": (6000, 4500), "transfer": (3000, 2000)}
+# The shipped basic DispNet is v1 fine-tuned (the transfer schedule) with the
+# full-resolution loss on frames of a late-turning pilot (docs/depth.md section 7; the
+# shipped one went through one more plain fine-tune, v2, between the two).
+BASIC_FINETUNE = ("--full-res", "--late-turns", "0.5")
 
 
 def _train_depth(scenario: str, out: Path, seed: int, budget: dict,
                  init_from: Path | None = None, name: str | None = None,
-                 data_from: str | None = None) -> Path:
-    """Train (``init_from`` None) or fine-tune a DispNet in ``out/depth/<name>``;
-    ``data_from``: reuse that run folder's frames instead of collecting new ones."""
+                 extra: tuple = ()) -> Path:
+    """Train (``init_from`` None) or fine-tune a DispNet in ``out/depth/<name>``, with
+    ``extra`` train-depth arguments."""
     from ..depth import commands as dc
     p = argparse.ArgumentParser()
     dc.add_arguments_train_depth(p)
@@ -73,9 +78,7 @@ def _train_depth(scenario: str, out: Path, seed: int, budget: dict,
         argv += ["--init-from", str(init_from)]
     if budget.get("smoke"):                           # tests: seconds
         argv.append("--smoke")
-    if data_from is not None:
-        argv += ["--data", str(out / "depth" / data_from / "train.npz"),
-                 "--test-data", str(out / "depth" / data_from / "test.npz")]
+    argv += list(extra)
     args = p.parse_args(argv)
     dc.run_train_depth(args)
     return run_dir / "model.npz"
@@ -130,11 +133,12 @@ def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred"
         for sc in scenarios:             # basic first: the transfer nets start from it
             if skip_depth:
                 depth_models[sc] = MODELS / f"depth_{sc}.npz"
-            elif sc == "basic":          # v1, then v2 = v1 fine-tuned on its own frames
+            elif sc == "basic":          # v1, then the shipped fine-tune of it
                 depth_models["basic_v1"] = _train_depth(sc, out, seed, budget)
                 depth_models[sc] = _train_depth(sc, out, seed, budget,
                                                 init_from=depth_models["basic_v1"],
-                                                name="basic_v2", data_from="basic")
+                                                name="basic_finetuned",
+                                                extra=BASIC_FINETUNE)
             else:                        # the transfer nets start from v1 (as shipped)
                 depth_models[sc] = _train_depth(sc, out, seed, budget,
                                                 init_from=depth_models["basic_v1"])
