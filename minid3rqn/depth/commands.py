@@ -77,11 +77,11 @@ def run_collect(args) -> int:
 
 def _ensure_data(path: Path, scenario: str, frames: int, seed: int, fpf: int = 50,
                  late: float = 0.0, frame_dt: float = 0.4):
-    from .data import collect, load_sequence, save_sequence
+    from .data import FRAME_DT, collect, load_sequence, save_sequence
     if not path.is_file():
         data = collect(scenario, frames, fpf, seed, late=late, frame_dt=frame_dt)
         extra = (f" --late-turns {late}" if late else "") + \
-            (f" --frame-dt {frame_dt}" if frame_dt != 0.4 else "")
+            (f" --frame-dt {frame_dt}" if frame_dt != FRAME_DT else "")
         save_sequence(path, data, {"scenario": scenario, "seed": seed, "late_turns": late,
                                    "command": f"python -m minid3rqn collect --scenario "
                                               f"{scenario} --frames {frames} --seed {seed} "
@@ -169,8 +169,8 @@ def _offsets(text: str) -> tuple[int, ...]:
     except ValueError:
         raise ValueError(f"train-depth: --source-offsets must be comma-separated integers "
                          f"such as -1,1; got {text!r}") from None
-    from .data import _check_offsets
-    return _check_offsets(offsets)
+    from .data import check_source_offsets
+    return check_source_offsets(offsets)
 
 
 def config_from_args(args):

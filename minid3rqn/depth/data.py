@@ -257,7 +257,7 @@ class Sequence:
         """Targets (B,) -> (target (B,3,H,W), [the frame t + o for o in ``offsets``])
         float32 in [0, 1]; the default offsets give [previous, next]."""
         targets = np.asarray(targets)
-        offsets = _check_offsets(offsets)
+        offsets = check_source_offsets(offsets)
         ids = self.flight[targets]
         lo, hi = min(min(offsets), 0), max(max(offsets), 0)
         if targets.min() + lo < 0 or targets.max() + hi >= len(self):
@@ -277,7 +277,8 @@ class Sequence:
                         None if self.pose is None else self.pose[keep], self.meta)
 
 
-def _check_offsets(offsets) -> tuple[int, ...]:
+def check_source_offsets(offsets) -> tuple[int, ...]:
+    """The offsets as a tuple of distinct non-zero ints, or a ValueError."""
     offsets = tuple(int(o) for o in offsets)
     if not offsets or 0 in offsets or len(set(offsets)) != len(offsets):
         raise ValueError(f"source offsets must be distinct non-zero frame offsets; got "
@@ -288,7 +289,7 @@ def _check_offsets(offsets) -> tuple[int, ...]:
 def target_indices(flight, offsets=(-1, 1)) -> np.ndarray:
     """Indices t such that every frame t + o (o in ``offsets``) belongs to t's flight."""
     flight = np.asarray(flight)
-    offsets = _check_offsets(offsets)
+    offsets = check_source_offsets(offsets)
     lo, hi = -min(min(offsets), 0), max(max(offsets), 0)
     if len(flight) <= lo + hi:
         return np.zeros(0, dtype=np.int64)
@@ -313,5 +314,5 @@ def load_sequence(path) -> Sequence:
 
 
 __all__ = ["SPEED", "FRAME_DT", "ScriptedPilot", "fly", "collect", "save_sequence",
-           "target_indices",
+           "target_indices", "check_source_offsets",
            "Sequence", "triplet_indices", "load_sequence"]
