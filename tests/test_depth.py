@@ -500,6 +500,36 @@ def test_late_turning_pilot_shows_more_obstacles_close_ahead():
         collect("basic", n_frames=30, seed=3, progress=False, camera=cam, late=1.5)
 
 
+
+def test_crabbing_flights_move_the_focus_of_expansion():
+    """With a crab angle the camera looks beta off the direction of motion, one beta per
+    flight: every step's displacement points at heading + beta (so the focus of expansion
+    is at x_n = tan(beta), off the image centre), the speed is unchanged, the heading turns
+    exactly as the course does, and crab 0 is the default flight. Bad angles are refused."""
+    from minid3rqn.world import Camera
+    cam = Camera(16, 52, 90.0)
+    data = collect("basic", n_frames=150, seed=4, progress=False, camera=cam, crab_deg=30.0)
+    pose, flight = data["pose"], data["flight"]
+    betas = []
+    for f in np.unique(flight):
+        p = pose[flight == f]
+        step = np.diff(p[:, :2], axis=0)
+        mid_heading = (p[:-1, 2] + p[1:, 2]) / 2           # an arc's chord: the mean heading
+        course = np.arctan2(step[:, 1], step[:, 0])
+        beta = np.angle(np.exp(1j * (course - mid_heading)))
+        np.testing.assert_allclose(beta, beta[0], atol=1e-9)   # one crab angle per flight
+        assert abs(beta[0]) <= np.deg2rad(30.0) + 1e-9
+        np.testing.assert_allclose(np.hypot(*step.T), 0.8, atol=0.01)
+        betas.append(beta[0])
+    assert np.ptp(betas) > np.deg2rad(15.0)                   # drawn per flight
+    plain = collect("basic", n_frames=30, seed=4, progress=False, camera=cam)
+    np.testing.assert_array_equal(
+        plain["pose"], collect("basic", n_frames=30, seed=4, progress=False, camera=cam,
+                               crab_deg=0.0)["pose"])
+    with pytest.raises(ValueError, match="crab_deg"):
+        collect("basic", n_frames=30, seed=4, progress=False, camera=cam, crab_deg=60.0)
+
+
 # -- the shipped depth models -----------------------------------------------------------------
 MODELS = __import__("pathlib").Path(__file__).resolve().parent.parent / "minid3rqn" / "models"
 

@@ -59,6 +59,10 @@ def add_arguments_collect(p: argparse.ArgumentParser) -> None:
                         "swerving late (0: the careful pilot)")
     p.add_argument("--frame-dt", type=float, default=0.4,
                    help="seconds between frames (paper: 0.4)")
+    p.add_argument("--crab-deg", type=float, default=0.0,
+                   help="largest crab angle (camera heading off the direction of flight), "
+                        "drawn per flight; moves the focus of expansion off the image "
+                        "centre (0: the camera looks where the drone flies)")
 
 
 def run_collect(args) -> int:
@@ -66,7 +70,7 @@ def run_collect(args) -> int:
     out = Path(args.out or RUNS / args.scenario / "train.npz")
     t0 = time.time()
     data = collect(args.scenario, args.frames, args.frames_per_flight, args.seed,
-                   late=args.late_turns, frame_dt=args.frame_dt)
+                   late=args.late_turns, frame_dt=args.frame_dt, crab_deg=args.crab_deg)
     save_sequence(out, data, {"scenario": args.scenario, "seed": args.seed,
                               "late_turns": args.late_turns,
                               "command": _command_line(args, "collect")})
@@ -76,12 +80,14 @@ def run_collect(args) -> int:
 
 
 def _ensure_data(path: Path, scenario: str, frames: int, seed: int, fpf: int = 50,
-                 late: float = 0.0, frame_dt: float = 0.4):
+                 late: float = 0.0, frame_dt: float = 0.4, crab_deg: float = 0.0):
     from .data import FRAME_DT, collect, load_sequence, save_sequence
     if not path.is_file():
-        data = collect(scenario, frames, fpf, seed, late=late, frame_dt=frame_dt)
+        data = collect(scenario, frames, fpf, seed, late=late, frame_dt=frame_dt,
+                       crab_deg=crab_deg)
         extra = (f" --late-turns {late}" if late else "") + \
-            (f" --frame-dt {frame_dt}" if frame_dt != FRAME_DT else "")
+            (f" --frame-dt {frame_dt}" if frame_dt != FRAME_DT else "") + \
+            (f" --crab-deg {crab_deg}" if crab_deg else "")
         save_sequence(path, data, {"scenario": scenario, "seed": seed, "late_turns": late,
                                    "command": f"python -m minid3rqn collect --scenario "
                                               f"{scenario} --frames {frames} --seed {seed} "
@@ -104,6 +110,9 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frame-dt", type=float, default=0.4,
                    help="training frames: seconds between frames (collect --frame-dt; paper "
                         "0.4); held-out frames always 0.4 s")
+    p.add_argument("--crab-deg", type=float, default=0.0,
+                   help="training frames: largest crab angle (collect --crab-deg); held-out "
+                        "frames always look where the drone flies")
     p.add_argument("--iterations", type=int, default=d.iterations)
     p.add_argument("--batch-size", type=int, default=d.batch_size)
     p.add_argument("--lr", type=float, default=d.lr)
@@ -245,7 +254,7 @@ def run_train_depth(args) -> int:
     cfg = config_from_args(args)
     t0 = time.time()
     train = _ensure_data(paths["train"], args.scenario, args.frames, args.seed,
-                         late=args.late_turns, frame_dt=args.frame_dt)
+                         late=args.late_turns, frame_dt=args.frame_dt, crab_deg=args.crab_deg)
     test = _ensure_data(paths["test"], args.scenario, args.test_frames,
                         args.seed + TEST_SEED_OFFSET)
     t_data = time.time() - t0

@@ -102,29 +102,41 @@ def _render(scene, poses, camera):
 
 
 def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0,
-        frame_dt: float = FRAME_DT) -> np.ndarray:
-    """One scripted flight of up to ``n_frames`` poses (fewer if it comes too close);
-    ``late``: the pilot's share of late-turn segments (``ScriptedPilot``); ``frame_dt``:
-    seconds between frames (the pilot decides at every frame)."""
+        frame_dt: float = FRAME_DT, crab_deg: float = 0.0) -> np.ndarray:
+    """One scripted flight of up to ``n_frames`` camera poses (fewer if it comes too
+    close); ``late``: the pilot's share of late-turn segments (``ScriptedPilot``);
+    ``frame_dt``: seconds between frames (the pilot decides at every frame).
+
+    ``crab_deg``: the largest *crab angle*, drawn once per flight uniformly in
+    [-crab_deg, crab_deg]. A quadrotor need not point where it flies: with crab angle
+    beta its course (the direction of motion, which the pilot steers) is its heading
+    + beta, so the camera looks beta to the side of the motion. The focus of expansion,
+    the image point with no parallax, then sits at x_n = tan(beta) instead of the image
+    centre, and what lies straight ahead of the camera moves across the view: view
+    synthesis can see its depth (docs/depth.md, "Crabbing"). 0 (default) draws nothing,
+    so a flight without crab is the same as before the option existed.
+    """
     from ..world.distance import nearest_distance, sample_start_pose
     from ..world.kinematics import integrate_arc
     pilot = ScriptedPilot(scene, rng, late=late)
-    pose = sample_start_pose(scene, rng)
-    poses = [pose]
+    course = sample_start_pose(scene, rng)      # (x, y, direction of motion)
+    beta = float(np.deg2rad(rng.uniform(-crab_deg, crab_deg))) if crab_deg > 0 else 0.0
+    camera_pose = course - np.array([0.0, 0.0, beta])     # heading = course - beta
+    poses = [camera_pose]
     while len(poses) < n_frames:
-        w = pilot(pose)
+        w = pilot(course)
         # Check clearance along the step, every 0.1 m.
-        path = _arc_points(pose, w, frame_dt, 8)
+        path = _arc_points(course, w, frame_dt, 8)
         if nearest_distance(scene, path).min() < SAFE:
             break
-        pose = integrate_arc(pose, SPEED, w, frame_dt)
-        poses.append(pose)
+        course = integrate_arc(course, SPEED, w, frame_dt)
+        poses.append(course - np.array([0.0, 0.0, beta]))
     return np.stack(poses)
 
 
 def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: int = 50,
             seed: int = 0, camera=None, progress: bool = True, late: float = 0.0,
-            frame_dt: float = FRAME_DT) -> dict:
+            frame_dt: float = FRAME_DT, crab_deg: float = 0.0) -> dict:
     """Fly scripted flights in fresh scenes of ``scenario`` until ``n_frames`` frames.
 
     Flight f flies in ``make_scene(scenario, seed=seed * 100003 + f)``; flights shorter
@@ -134,9 +146,13 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
     (``ScriptedPilot``; 0, the default, is the careful pilot). ``frame_dt``: seconds
     between frames (paper: 0.4 s; a camera films faster than the pilot decides, and
     a shorter step means smaller image motion for view synthesis: docs/depth.md).
+    ``crab_deg``: the largest crab angle (heading off the course), per flight (``fly``).
     """
     if not 0.0 < frame_dt <= 2.0:
         raise ValueError(f"collect: frame_dt must be in (0, 2] s; got {frame_dt}")
+    if not 0.0 <= crab_deg <= 40.0:
+        raise ValueError(f"collect: crab_deg must be in [0, 40] degrees (the focus of "
+                         f"expansion must stay in the 90 degree view); got {crab_deg}")
     from ..world.camera import Camera
     from ..world.scenarios import make_scene
     if n_frames < 3:
@@ -153,7 +169,8 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         bar = tqdm(total=n_frames, desc=f"collect {scenario}", unit="frame")
     while n_frames - total >= 3:        # a last flight of 1-2 frames would hold no triplet
         scene = make_scene(scenario, seed=seed * 100003 + f)
-        poses = fly(scene, min(frames_per_flight, n_frames - total), rng, late, frame_dt)
+        poses = fly(scene, min(frames_per_flight, n_frames - total), rng, late, frame_dt,
+                    crab_deg)
         f += 1
         if len(poses) < 3:
             continue
@@ -171,7 +188,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
     return {"rgb": np.concatenate(rgb), "depth": np.concatenate(depth),
             "pose": np.concatenate(pose), "flight": np.concatenate(flight),
             "K": camera.K, "camera": (camera.height, camera.width, camera.hfov_deg),
-            "dt": frame_dt}
+            "dt": frame_dt, "crab_deg": crab_deg}
 
 
 def save_sequence(path, data: dict, metadata: dict | None = None) -> Path:
@@ -179,6 +196,8 @@ def save_sequence(path, data: dict, metadata: dict | None = None) -> Path:
     meta = dict(metadata or {})
     meta.setdefault("speed", SPEED)
     meta.setdefault("dt", data.get("dt", FRAME_DT))
+    if data.get("crab_deg"):
+        meta.setdefault("crab_deg", data["crab_deg"])
     meta["camera"] = list(data.get("camera", ()))
     return save_npz(path, arrays, meta)
 
