@@ -35,6 +35,16 @@ def test_collect_train_eval_smoke(tmp_path, capsys):
     assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
                  str(run / "test.npz"), "--json", str(tmp_path / "m.json")]) == 0
     assert 0 <= json.loads((tmp_path / "m.json").read_text())["a1"] <= 1
+    # --posenet: the checkpoint's PoseNet is judged too, and equals the training's own
+    # final pose evaluation; a model file (DispNet only) is refused by name
+    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
+                 str(run / "test.npz"), "--posenet", str(run / "checkpoint.npz"),
+                 "--json", str(tmp_path / "p.json")]) == 0
+    got = json.loads((tmp_path / "p.json").read_text())
+    assert got["trans_err_m"] == pytest.approx(meta["results"]["trans_err_m"], abs=1e-4)
+    with pytest.raises(ValueError, match="holds no PoseNet"):
+        _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
+              str(run / "test.npz"), "--posenet", str(run / "model.npz")])
 
 
 def test_example_smoke(tmp_path):

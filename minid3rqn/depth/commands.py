@@ -315,6 +315,9 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--columns", default="all", choices=["all", "centre", "sides"],
                    help="with --by-depth: only the middle half of the image width (what "
                         "lies ahead) or the outer quarters")
+    p.add_argument("--posenet", default=None,
+                   help="a training checkpoint (runs/depth/<run>/checkpoint.npz): also report "
+                        "its PoseNet's pose errors on these frames")
 
 
 def run_eval_depth(args) -> int:
@@ -322,8 +325,12 @@ def run_eval_depth(args) -> int:
     estimator = DepthEstimator.load(args.model)
     path = Path(args.test_data or RUNS / args.scenario / "test.npz")
     test = _ensure_data(path, args.scenario, args.test_frames, args.seed + TEST_SEED_OFFSET)
+    posenet = None
+    if args.posenet:
+        from .train import load_posenet
+        posenet = load_posenet(args.posenet)
     t0 = time.time()
-    results = evaluate(estimator, test)
+    results = evaluate(estimator, test, posenet)
     results["seconds"] = round(time.time() - t0, 2)
     if args.by_depth:
         from .evaluate import errors_by_depth

@@ -95,6 +95,20 @@ def build_nets(cfg: TrainConfig) -> tuple[DispNet, PoseNet]:
     return disp, pose
 
 
+def load_posenet(path) -> PoseNet:
+    """The PoseNet of a training checkpoint (``Trainer.save_checkpoint``), built from the
+    config stored beside it; for ``eval-depth --posenet``. A shipped model file holds
+    the DispNet alone, so it is refused with a clear message."""
+    arrays, meta = load_npz(path)
+    weights = {k[len("pose."):]: v for k, v in arrays.items() if k.startswith("pose.")}
+    if not weights or "config" not in (meta or {}):
+        raise ValueError(f"load_posenet: {str(path)!r} holds no PoseNet; expected a training "
+                         f"checkpoint (runs/depth/<run>/checkpoint.npz), not a model file")
+    _, pose = build_nets(TrainConfig.from_dict(meta["config"]))
+    pose.load_state_dict(weights)
+    return pose
+
+
 class Trainer:
     """Holds the networks, the optimizer and the sampler; ``run`` trains to the end."""
 
@@ -317,4 +331,4 @@ def _jsonable(obj):
     return obj
 
 
-__all__ = ["TrainConfig", "Trainer", "build_nets", "speed_scale"]
+__all__ = ["TrainConfig", "Trainer", "build_nets", "load_posenet", "speed_scale"]
