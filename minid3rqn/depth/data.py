@@ -121,8 +121,8 @@ def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0,
     pilot = ScriptedPilot(scene, rng, late=late)
     course = sample_start_pose(scene, rng)      # (x, y, direction of motion)
     beta = float(np.deg2rad(rng.uniform(-crab_deg, crab_deg))) if crab_deg > 0 else 0.0
-    camera_pose = course - np.array([0.0, 0.0, beta])     # heading = course - beta
-    poses = [camera_pose]
+    crab = np.array([0.0, 0.0, beta])           # camera pose = course - crab
+    poses = [course - crab]
     while len(poses) < n_frames:
         w = pilot(course)
         # Check clearance along the step, every 0.1 m.
@@ -130,7 +130,7 @@ def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0,
         if nearest_distance(scene, path).min() < SAFE:
             break
         course = integrate_arc(course, SPEED, w, frame_dt)
-        poses.append(course - np.array([0.0, 0.0, beta]))
+        poses.append(course - crab)
     return np.stack(poses)
 
 
