@@ -53,3 +53,17 @@ def test_example_smoke(tmp_path):
                          cwd=ROOT, timeout=300)
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "emerging.png").is_file()
+
+
+def test_recorded_command_parses_back():
+    """The command line a run records (results.json, the shipped JSONs) gives the same
+    arguments when run again, also for values that start with a dash (source offsets)."""
+    import argparse
+    import shlex
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_depth(p)
+    args = p.parse_args(["--source-offsets=-2,-1,1,2", "--full-res", "--seed", "3"])
+    line = commands._command_line(args, "train-depth")
+    assert "--source-offsets=-2,-1,1,2" in line
+    again = p.parse_args(shlex.split(line)[4:])     # after "python -m minid3rqn train-depth"
+    assert vars(again) == vars(args)

@@ -7,7 +7,7 @@ from minid3rqn.rl.reproduce import FAMILY, TRANSFER, reproduce
 def test_reproduce_pipeline_smoke(tmp_path):
     res = reproduce(out=tmp_path, budget={"smoke": True, "flights": 4}, workers=1)
     depth = tmp_path / "depth"
-    for name in ["basic", "basic_finetuned", *TRANSFER]:
+    for name in ["basic", "basic_finetuned", "basic_long", *TRANSFER]:
         assert (depth / name / "model.npz").exists(), name
     agents = sorted(p.name for p in (tmp_path / "agent").iterdir())
     assert len(agents) == 2 * len(FAMILY)               # each trained, then fine-tuned

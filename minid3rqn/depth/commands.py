@@ -41,7 +41,12 @@ def _command_line(args, name: str) -> str:
         if key.startswith("_") or key == "command" or value is None or value is False:
             continue
         flag = "--" + key.replace("_", "-")
-        parts.append(flag if value is True else f"{flag} {value}")
+        if value is True:
+            parts.append(flag)
+        elif str(value).startswith("-"):     # "--source-offsets -1,1" would read -1,1 as a flag
+            parts.append(f"{flag}={value}")
+        else:
+            parts.append(f"{flag} {value}")
     return " ".join(parts)
 
 

@@ -1,7 +1,8 @@
 """``python -m minid3rqn reproduce``: Tables 5 and 6 end to end.
 
     1. depth: train a DispNet on basic (v1), fine-tune it with the full-resolution loss
-       on a late-turning pilot's frames (the one the Q-nets read in basic), and
+       on a late-turning pilot's frames, then longer on three times as many of them
+       (the one the Q-nets read in basic), and
        fine-tune v1 in channel, intersections and corners (the shipped recipe,
        docs/depth.md section 7), unless ``--skip-depth`` (then the shipped
        ``models/depth_<scenario>.npz``);
@@ -51,27 +52,34 @@ QUICK = dict(steps=3_000, updates_per_step=4.0, eps_decay=2_500, learning_starts
 # scenario fine-tunes the basic DispNet on its own frames. Both with an lr step (x 0.1):
 # (iterations, step at).
 DEPTH_RECIPE = ["--gyro-yaw", "--init-disp", "0.1", "--unmasked-weight", "0.1"]
-DEPTH_SCHEDULE = {"basic": (6000, 4500), "transfer": (3000, 2000)}
-# The shipped basic DispNet is v1 fine-tuned (the transfer schedule) with the
-# full-resolution loss on frames of a late-turning pilot (docs/depth.md section 7; the
-# shipped one went through one more plain fine-tune, v2, between the two).
+DEPTH_SCHEDULE = {"basic": (6000, 4500), "transfer": (3000, 2000), "long": (10000, 7000)}
+# The shipped basic DispNet (v5) is v1 fine-tuned (the transfer schedule) with the
+# full-resolution loss on frames of a late-turning pilot, then (the long schedule) on
+# three times as many fresh such frames (docs/depth.md section 7; the shipped one went
+# through one more plain fine-tune, v2, before the first, and its long stage's frames
+# were collected with seed 2; here they share the seed, so the first third of them are
+# the previous stage's frames).
 BASIC_FINETUNE = ("--full-res", "--late-turns", "0.5")
 
 
 def _train_depth(scenario: str, out: Path, seed: int, budget: dict,
                  init_from: Path | None = None, name: str | None = None,
-                 extra: tuple = ()) -> Path:
+                 extra: tuple = (), schedule: str | None = None, frames_factor: int = 1) -> Path:
     """Train (``init_from`` None) or fine-tune a DispNet in ``out/depth/<name>``, with
-    ``extra`` train-depth arguments."""
+    ``extra`` train-depth arguments; ``schedule`` a key of DEPTH_SCHEDULE (default:
+    basic from scratch, transfer for a fine-tune); ``frames_factor`` x the budget's
+    frames."""
     from ..depth import commands as dc
     p = argparse.ArgumentParser()
     dc.add_arguments_train_depth(p)
-    iterations, decay_at = DEPTH_SCHEDULE["basic" if init_from is None else "transfer"]
+    schedule = schedule or ("basic" if init_from is None else "transfer")
+    iterations, decay_at = DEPTH_SCHEDULE[schedule]
     if budget["depth_iterations"]:                    # --quick: the same shape, shorter
         iterations = budget["depth_iterations"]
         decay_at = iterations * 3 // 4
     run_dir = out / "depth" / (name or scenario)
-    argv = ["--scenario", scenario, "--seed", str(seed), "--frames", str(budget["depth_frames"]),
+    frames = budget["depth_frames"] * frames_factor
+    argv = ["--scenario", scenario, "--seed", str(seed), "--frames", str(frames),
             "--iterations", str(iterations), "--lr-decay-at", str(decay_at),
             "--dir", str(run_dir), "--resume", "--quiet", *DEPTH_RECIPE]
     if init_from is not None:
@@ -133,12 +141,14 @@ def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred"
         for sc in scenarios:             # basic first: the transfer nets start from it
             if skip_depth:
                 depth_models[sc] = MODELS / f"depth_{sc}.npz"
-            elif sc == "basic":          # v1, then the shipped fine-tune of it
+            elif sc == "basic":          # v1, then the shipped fine-tunes of it
                 depth_models["basic_v1"] = _train_depth(sc, out, seed, budget)
-                depth_models[sc] = _train_depth(sc, out, seed, budget,
-                                                init_from=depth_models["basic_v1"],
-                                                name="basic_finetuned",
-                                                extra=BASIC_FINETUNE)
+                finetuned = _train_depth(sc, out, seed, budget,
+                                         init_from=depth_models["basic_v1"],
+                                         name="basic_finetuned", extra=BASIC_FINETUNE)
+                depth_models[sc] = _train_depth(sc, out, seed, budget, init_from=finetuned,
+                                                name="basic_long", extra=BASIC_FINETUNE,
+                                                schedule="long", frames_factor=3)
             else:                        # the transfer nets start from v1 (as shipped)
                 depth_models[sc] = _train_depth(sc, out, seed, budget,
                                                 init_from=depth_models["basic_v1"])
