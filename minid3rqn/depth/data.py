@@ -112,9 +112,10 @@ def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0,
     beta its course (the direction of motion, which the pilot steers) is its heading
     + beta, so the camera looks beta to the side of the motion. The focus of expansion,
     the image point with no parallax, then sits at x_n = tan(beta) instead of the image
-    centre, and what lies straight ahead of the camera moves across the view: view
-    synthesis can see its depth (docs/depth.md, "Crabbing"). 0 (default) draws nothing,
-    so a flight without crab is the same as before the option existed.
+    centre, and what lies straight ahead of the camera moves across the view (an
+    experiment: it did not cure the bias ahead; docs/depth.md section 7, "Is it the
+    focus of expansion?"). 0 (default) draws nothing, so a flight without crab is the
+    same as before the option existed.
     """
     from ..world.distance import nearest_distance, sample_start_pose
     from ..world.kinematics import integrate_arc
