@@ -492,13 +492,18 @@ def test_late_turning_pilot_shows_more_obstacles_close_ahead():
 
     careful = close_ahead(0.0)
     assert close_ahead(1.0) > careful + 0.03
-    data = collect("basic", n_frames=30, seed=3, progress=False, camera=cam)
-    np.testing.assert_array_equal(
-        data["pose"], collect("basic", n_frames=30, seed=3, progress=False, camera=cam,
-                              late=0.0)["pose"])
-    with pytest.raises(ValueError, match="late"):
-        collect("basic", n_frames=30, seed=3, progress=False, camera=cam, late=1.5)
+    _off_by_default_and_checked(cam, "late", off=0.0, bad=1.5)
 
+
+def _off_by_default_and_checked(cam, name: str, off, bad):
+    """A pilot option at its ``off`` value flies the default flights exactly, and a
+    ``bad`` value is refused with an error naming it."""
+    plain = collect("basic", n_frames=30, seed=3, progress=False, camera=cam)
+    np.testing.assert_array_equal(
+        plain["pose"], collect("basic", n_frames=30, seed=3, progress=False, camera=cam,
+                               **{name: off})["pose"])
+    with pytest.raises(ValueError, match=name):
+        collect("basic", n_frames=30, seed=3, progress=False, camera=cam, **{name: bad})
 
 
 def test_crabbing_flights_move_the_focus_of_expansion():
@@ -522,12 +527,7 @@ def test_crabbing_flights_move_the_focus_of_expansion():
         np.testing.assert_allclose(np.hypot(*step.T), 0.8, atol=0.01)
         betas.append(beta[0])
     assert np.ptp(betas) > np.deg2rad(15.0)                   # drawn per flight
-    plain = collect("basic", n_frames=30, seed=4, progress=False, camera=cam)
-    np.testing.assert_array_equal(
-        plain["pose"], collect("basic", n_frames=30, seed=4, progress=False, camera=cam,
-                               crab_deg=0.0)["pose"])
-    with pytest.raises(ValueError, match="crab_deg"):
-        collect("basic", n_frames=30, seed=4, progress=False, camera=cam, crab_deg=60.0)
+    _off_by_default_and_checked(cam, "crab_deg", off=0.0, bad=60.0)
 
 
 # -- the shipped depth models -----------------------------------------------------------------
