@@ -2,10 +2,10 @@
 
     1. depth: train a DispNet on basic (v1), fine-tune it with the full-resolution loss
        on a late-turning pilot's frames, then longer on three times as many of them
-       (the one the Q-nets read in basic), and
-       fine-tune v1 in channel, intersections and corners (the shipped recipe,
-       docs/depth.md section 7), unless ``--skip-depth`` (then the shipped
-       ``models/depth_<scenario>.npz``);
+       (the one the Q-nets read in basic), and fine-tune that one the same way
+       (full-resolution loss, a late-turning pilot's frames) in channel, intersections
+       and corners (the shipped recipe, docs/depth.md section 7), unless
+       ``--skip-depth`` (then the shipped ``models/depth_<scenario>.npz``);
     2. Table 5: train the Q-family on ``basic`` on ground-truth depth (same budget and
        seed for every model: D3RQN, DDRQN, D3QN, DDQN, and the non-recurrent pair with
        5 stacked frames; the shipped D3RQN's 240k-transition recipe), then, for
@@ -58,7 +58,8 @@ DEPTH_SCHEDULE = {"basic": (6000, 4500), "transfer": (3000, 2000), "long": (1000
 # three times as many fresh such frames (docs/depth.md section 7; the shipped one went
 # through one more plain fine-tune, v2, before the first, and its long stage's frames
 # were collected with seed 2; here they share the seed, so the first third of them are
-# the previous stage's frames).
+# the previous stage's frames). Each transfer DispNet fine-tunes that last basic one the
+# same way (the transfer schedule) on its own world's late-turning frames.
 BASIC_FINETUNE = ("--full-res", "--late-turns", "0.5")
 
 
@@ -149,9 +150,10 @@ def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred"
                 depth_models[sc] = _train_depth(sc, out, seed, budget, init_from=finetuned,
                                                 name="basic_long", extra=BASIC_FINETUNE,
                                                 schedule="long", frames_factor=3)
-            else:                        # the transfer nets start from v1 (as shipped)
+            else:                        # the transfer nets start from basic's last one
                 depth_models[sc] = _train_depth(sc, out, seed, budget,
-                                                init_from=depth_models["basic_v1"])
+                                                init_from=depth_models["basic"],
+                                                extra=BASIC_FINETUNE)
     models = {}
     finetune = depth == "pred" and train_depth == "gt" and budget["finetune_steps"] > 0
     for spec in FAMILY if tables in ("5", "both") else ("d3rqn",):
