@@ -104,6 +104,19 @@ def test_evaluation_is_the_same_in_parallel_and_in_any_chunk_order():
     assert again.mean_steps == results["random"].mean_steps
 
 
+def test_training_world_pool_is_set_and_checked():
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    assert commands.config_from_args(p.parse_args([])).flights.n_worlds == 32
+    cfg = commands.config_from_args(p.parse_args(["--worlds", "5"]))
+    assert cfg.flights.n_worlds == 5
+    fl = Flights("basic", 3, seed=0, config=cfg.flights)
+    assert len(fl.worlds) == 5 and len(set(fl.world_seeds.tolist())) == 5
+    for bad in (0, -2, 2.5, True):
+        with pytest.raises(ValueError, match="n_worlds"):
+            Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=bad))
+
+
 def test_evaluation_rejects_bad_counts():
     for kwargs, word in [({"n_flights": 0}, "n_flights"), ({"chunk": 0}, "chunk"),
                          ({"workers": 0}, "workers")]:

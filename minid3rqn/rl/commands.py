@@ -65,6 +65,8 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--eps-decay", type=int, default=d.eps_decay_steps)
     p.add_argument("--replay", type=int, default=d.replay_capacity)
     p.add_argument("--hidden", type=int, default=d.hidden)
+    p.add_argument("--worlds", type=int, default=d.flights.n_worlds,
+                   help="scenes in the training pool (each flight starts in one of them)")
     p.add_argument("--depth", default=d.depth, choices=["gt", "pred"])
     p.add_argument("--depth-model", default=None, help="DepthEstimator .npz (--depth pred)")
     p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
@@ -86,6 +88,7 @@ def config_from_args(args):
                       updates_per_step=args.updates_per_step, eps_decay_steps=args.eps_decay,
                       replay_capacity=args.replay, hidden=args.hidden, depth=args.depth,
                       init_model=args.init_model, eps_start=args.eps_start)
+    cfg.flights.n_worlds = args.worlds
     if args.smoke:
         from .flights import FlightsConfig
         for k, v in SMOKE.items():
