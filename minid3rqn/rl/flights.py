@@ -76,13 +76,13 @@ class Flights:
                              "with predict(rgb uint8 (N, H, W, 3)) -> depth (N, H, W))")
         if n < 1:
             raise ValueError(f"Flights: n must be >= 1; got {n}")
-        n_worlds = (config or FlightsConfig()).n_worlds
+        self.scenario, self.n = scenario, int(n)
+        self.cfg = config or FlightsConfig()
+        n_worlds = self.cfg.n_worlds
         if isinstance(n_worlds, bool) or not isinstance(n_worlds, (int, np.integer)) \
                 or n_worlds < 1:
             raise ValueError(f"Flights: config.n_worlds (the pool of scenes) must be an int "
                              f">= 1; got {n_worlds!r}")
-        self.scenario, self.n = scenario, int(n)
-        self.cfg = config or FlightsConfig()
         self.depth_mode, self.estimator = depth, depth_estimator
         self.autoreset = autoreset
         self.camera = camera or Camera()
