@@ -6,7 +6,7 @@ from minid3rqn import autograd as ag
 from minid3rqn.nets.qnet import QNetConfig, VARIANTS, build_qnet
 from minid3rqn.rl.agent import Agent, AgentConfig, FrameStacker, double_q_targets
 from minid3rqn.rl.replay import EpisodeReplay
-from minid3rqn.rl.policies import QNetPolicy
+from minid3rqn.rl.policies import EnsemblePolicy, QNetPolicy
 
 pytestmark = pytest.mark.rl
 
@@ -167,6 +167,33 @@ def test_window_policy_acts_on_the_last_frames_of_its_own_flight():
         return q.data[-1, 0]
     np.testing.assert_allclose(pol.last_q[0], q_over(frames[3:6, 0]), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(pol.last_q[1], q_over(frames[4:6, 1]), rtol=1e-5, atol=1e-6)
+
+
+def test_ensemble_acts_greedily_on_the_members_mean_q():
+    """Each member carries its own state through the flight (and resets it on a
+    restart); the ensemble's Q is their mean, its action that mean's argmax."""
+    nets = [build_qnet("d3rqn", rng=k, width=8) for k in range(3)]
+    rng = np.random.default_rng(2)
+    frames = rng.random((4, 3, H, W)).astype(np.float32)        # 4 steps, 3 flights
+    ens, alone = EnsemblePolicy([QNetPolicy(n) for n in nets]), [QNetPolicy(n) for n in nets]
+    ens.reset(3)
+    for p in alone:
+        p.reset(3)
+    for t in range(4):
+        started = np.array([False, t == 2, False])
+        a = ens.act({"frames": frames[t]}, started=started)
+        for p in alone:
+            p.act({"frames": frames[t]}, started=started)
+        mean = np.mean([p.last_q for p in alone], axis=0)
+        np.testing.assert_allclose(ens.last_q, mean, rtol=1e-6, atol=1e-7)
+        np.testing.assert_array_equal(a, np.argmax(mean, axis=1))
+    with pytest.raises(ValueError, match="at least 2"):
+        EnsemblePolicy([QNetPolicy(nets[0])])
+    with pytest.raises(TypeError, match=r"members\[1\] must be a QNetPolicy"):
+        EnsemblePolicy([QNetPolicy(nets[0]), "model.npz"])
+    with pytest.raises(ValueError, match="must share"):
+        EnsemblePolicy([QNetPolicy(nets[0]),
+                        QNetPolicy(build_qnet("d3rqn", rng=0, width=8, n_actions=3))])
 
 
 def test_frame_stacker():

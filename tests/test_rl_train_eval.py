@@ -142,6 +142,11 @@ def test_cli_smoke(tmp_path):
                          "--json", str(tmp_path / "r.jsonl")])
     assert commands.run_evaluate(args) == 0
     assert len((tmp_path / "r.jsonl").read_text().splitlines()) == 2
+    ens = commands.make_policy(f"{model}+{model}")          # an ensemble spec
+    assert ens.name.endswith("-ens2") and len(ens.members) == 2
+    for bad in (f"{model}+random", f"{model}+"):
+        with pytest.raises(SystemExit, match="ensemble joins Q-net"):
+            commands.make_policy(bad)
 
 
 @pytest.mark.skipif(not SHIPPED.exists(), reason="no shipped Q-net yet")

@@ -141,13 +141,20 @@ BASELINES = ("straight", "random", "reactive", "oracle")
 
 
 def make_policy(spec: str, seed: int = 0, window: int | None = None):
-    """'straight' | 'random' | 'reactive' | 'oracle' | path to a Q-net .npz.
+    """'straight' | 'random' | 'reactive' | 'oracle' | path to a Q-net .npz | several
+    Q-net paths joined by '+' (an ensemble: greedy on their mean Q-values).
 
     ``window`` (recurrent Q-nets): act from a zero state over the last ``window`` frames
     at every step, as in training, instead of carrying the state through the flight."""
     from ..world import ACTIONS
-    from .policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy,
-                           StraightPolicy)
+    from .policies import (EnsemblePolicy, OraclePolicy, QNetPolicy, RandomPolicy,
+                           ReactivePolicy, StraightPolicy)
+    if "+" in spec:
+        parts = spec.split("+")
+        if any(p in BASELINES or not p for p in parts):
+            raise SystemExit(f"evaluate: an ensemble joins Q-net .npz files with '+'; got "
+                             f"{spec!r}")
+        return EnsemblePolicy([make_policy(p, seed, window) for p in parts])
     if spec == "straight":
         return StraightPolicy()
     if spec == "random":
@@ -176,7 +183,8 @@ def make_policy(spec: str, seed: int = 0, window: int | None = None):
 
 def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("policies", nargs="+",
-                   help=f"baselines {', '.join(BASELINES)} and/or Q-net .npz files")
+                   help=f"baselines {', '.join(BASELINES)} and/or Q-net .npz files (A.npz+B.npz+...: "
+                        "an ensemble, greedy on the members' mean Q-values)")
     p.add_argument("--scenario", default="basic")
     p.add_argument("--flights", type=int, default=2000, help="test flights (paper: 2000)")
     p.add_argument("--steps", type=int, default=50, help="steps for a success (paper: 50)")

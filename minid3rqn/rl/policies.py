@@ -206,5 +206,44 @@ class QNetPolicy(Policy):
         return actions
 
 
+class EnsemblePolicy(Policy):
+    """Greedy on the mean of several Q-nets' Q-values (each with its own recurrent
+    state): an ablation, not the paper's method.
+
+    Nets trained from different seeds make different mistakes away from their training
+    world (docs/results.md, Table 6); averaging their Q-values before the argmax votes
+    the idiosyncrasies down. Every member sees the same frames; ``last_q`` is the mean.
+    """
+
+    def __init__(self, members: list, name: str | None = None):
+        members = list(members)
+        if len(members) < 2:
+            raise ValueError(f"EnsemblePolicy: members must hold at least 2 QNetPolicy; "
+                             f"got {len(members)}")
+        for i, m in enumerate(members):
+            if not isinstance(m, QNetPolicy):
+                raise TypeError(f"EnsemblePolicy: members[{i}] must be a QNetPolicy; "
+                                f"got {type(m).__name__}")
+        shapes = {(m.qnet.config.height, m.qnet.config.width_px, m.qnet.config.n_actions)
+                  for m in members}
+        if len(shapes) > 1:
+            raise ValueError(f"EnsemblePolicy: members must share (height, width, actions); "
+                             f"got {sorted(shapes)}")
+        self.members = members
+        self.name = name or f"{members[0].name}-ens{len(members)}"
+        self.last_q = None
+
+    def reset(self, n):
+        self.n = n
+        for m in self.members:
+            m.reset(n)
+
+    def act(self, obs, started=None):
+        for m in self.members:
+            m.act(obs, started)
+        self.last_q = np.mean([m.last_q for m in self.members], axis=0)
+        return np.argmax(self.last_q, axis=1).astype(np.int64)
+
+
 __all__ = ["Policy", "StraightPolicy", "RandomPolicy", "ReactivePolicy", "OraclePolicy",
-           "QNetPolicy"]
+           "QNetPolicy", "EnsemblePolicy"]
