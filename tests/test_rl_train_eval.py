@@ -181,6 +181,13 @@ def test_fly_main_job_smoke(tmp_path, capsys):
     assert gif.is_file() and gif.stat().st_size > 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["flights"] == 2 and 0 <= out["success_rate"] <= 1
+    # an ensemble flies too (the shipped net twice), and a missing member is named
+    args = p.parse_args(["--flights", "2", "--steps", "2", "--seed", "1", "--depth", "gt",
+                         "--gif", str(gif), "--model", f"{SHIPPED}+{SHIPPED}"])
+    assert commands.run_fly(args) == 0
+    args = p.parse_args(["--model", f"{SHIPPED}+{tmp_path / 'nope.npz'}"])
+    with pytest.raises(SystemExit, match="nope.npz"):
+        commands.run_fly(args)
 
 
 def test_recorded_result_picks_the_largest_matching_evaluation(tmp_path):

@@ -222,7 +222,8 @@ def run_evaluate(args) -> int:
 
 # -- fly ----------------------------------------------------------------------------------
 def add_arguments_fly(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", default=str(SHIPPED_QNET), help="Q-net .npz")
+    p.add_argument("--model", default=str(SHIPPED_QNET),
+                   help="Q-net .npz (A.npz+B.npz+...: an ensemble on their mean Q-values)")
     p.add_argument("--depth-model", default=None,
                    help="DepthEstimator .npz (default: the shipped depth_<scenario>.npz)")
     p.add_argument("--depth", default="pred", choices=["gt", "pred"])
@@ -238,9 +239,11 @@ def run_fly(args) -> int:
     from .fly import fly
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 10**6)
     depth = args.depth
-    model = Path(args.model)
-    if not model.exists():
-        raise SystemExit(f"fly: Q-net {str(model)!r} not found")
+    model = args.model
+    for part in model.split("+"):
+        if not Path(part).is_file():
+            raise SystemExit(f"fly: --model: Q-net {part!r} not found (expected a .npz file, "
+                             f"or several joined by '+')")
     depth_model = args.depth_model or shipped_depth_model(args.scenario)
     if depth == "pred" and not Path(depth_model).exists():
         if args.depth_model is None and shipped_depth_model("basic").exists():

@@ -13,16 +13,18 @@ from .. import viz
 from ..world import render_batch, topdown
 from .evaluate import run_flights, wilson_interval
 from .flights import Flights, FlightsConfig
-from .policies import QNetPolicy
+from .policies import EnsemblePolicy, QNetPolicy
 
 ACTION_NAMES = ["0", "+.25", "-.25", "+.5", "-.5"]
 
 
 def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flights: int = 200,
         gif="fly.gif", max_steps: int = 50) -> dict:
-    """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate."""
+    """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate.
+    ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q)."""
     t0 = time.time()
-    policy = QNetPolicy.load(model, "D3RQN")
+    members = [QNetPolicy.load(part, "D3RQN") for part in str(model).split("+")]
+    policy = members[0] if len(members) == 1 else EnsemblePolicy(members)
     depth = "pred" if depth_estimator is not None else "gt"
     flights = Flights(scenario, n_flights, seed=seed, depth=depth,
                       depth_estimator=depth_estimator, autoreset=False,
