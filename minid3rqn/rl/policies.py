@@ -230,7 +230,8 @@ class EnsemblePolicy(Policy):
             raise ValueError(f"EnsemblePolicy: members must share (height, width, actions); "
                              f"got {sorted(shapes)}")
         self.members = members
-        self.name = name or f"{members[0].name}-ens{len(members)}"
+        names = sorted({m.name for m in members})
+        self.name = name or f"{'+'.join(names)}-ens{len(members)}"
         self.last_q = None
 
     def reset(self, n):
