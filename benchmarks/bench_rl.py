@@ -26,6 +26,8 @@ Measured (medians over ``--repeat`` runs after warm-ups, float32):
   (the result is then extrapolated linearly and marked so). ``--eval-workers 1,2``
   times it with the flights' chunks spread over that many processes, one per core
   (``evaluate --workers``; each process runs ``--threads`` BLAS threads).
+- ``--ensemble N``: the framework and eval parts fly N copies of the D3RQN as an
+  ensemble (``EnsemblePolicy``, docs/d3rqn.md section 10): N Q-net passes per step.
 
 Threads: the script re-runs itself in a child with OMP/OPENBLAS/MKL_NUM_THREADS set
 before NumPy loads (and ``torch.set_num_threads``). Output: one JSON line per part.
@@ -158,13 +160,23 @@ def _torch_qnet(net, torch):
     return t
 
 
-def _qnet_model():
+def _qnet_model(ensemble: int = 1):
+    """The shipped D3RQN (else an untrained one: same speed); ``ensemble`` > 1: that many
+    copies of it flying as an ``EnsemblePolicy`` (the speed does not depend on the
+    weights)."""
     from minid3rqn.rl.commands import SHIPPED_QNET
-    from minid3rqn.rl.policies import QNetPolicy
+    from minid3rqn.rl.policies import EnsemblePolicy, QNetPolicy
     from minid3rqn.nets.qnet import QNet, QNetConfig
-    if SHIPPED_QNET.exists():
-        return QNetPolicy.load(SHIPPED_QNET, "D3RQN"), str(SHIPPED_QNET)
-    return QNetPolicy(QNet(QNetConfig(), rng=0), "D3RQN (untrained)"), "untrained"
+
+    def one():
+        if SHIPPED_QNET.exists():
+            return QNetPolicy.load(SHIPPED_QNET, "D3RQN"), str(SHIPPED_QNET)
+        return QNetPolicy(QNet(QNetConfig(), rng=0), "D3RQN (untrained)"), "untrained"
+    if ensemble == 1:
+        return one()
+    members = [one() for _ in range(ensemble)]
+    return (EnsemblePolicy([m for m, _ in members]),
+            f"ensemble of {ensemble} x {members[0][1]}")
 
 
 class _TimedEstimator:
@@ -180,7 +192,7 @@ class _TimedEstimator:
         return out
 
 
-def bench_framework(repeat: int, threads: int, n_flights: int = 1) -> dict:
+def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int = 1) -> dict:
     """Render -> DispNet -> Q-net step -> world step for ``n_flights`` flights in lockstep
     (batched over flights): frames per second (= Hz per flight when n_flights = 1).
 
@@ -192,7 +204,7 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1) -> dict:
     import numpy as np
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.flights import Flights
-    policy, model = _qnet_model()
+    policy, model = _qnet_model(ensemble)
     depth_path = shipped_depth_model("basic")
     if depth_path.exists():
         est, depth_name = load_depth_estimator(depth_path), f"DispNet {depth_path.name}"
@@ -265,10 +277,10 @@ def bench_framework_rendered_twice(repeat: int, threads: int, n_flights: int = 1
             "note": "the old loop: perception twice per step"}
 
 
-def bench_eval(flights: int, threads: int, workers: int = 1) -> list:
+def bench_eval(flights: int, threads: int, workers: int = 1, ensemble: int = 1) -> list:
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.evaluate import evaluate_policy
-    policy, model = _qnet_model()
+    policy, model = _qnet_model(ensemble)
     outs = []
     modes = [("gt", None)]
     if shipped_depth_model("basic").exists():
@@ -291,14 +303,15 @@ def child(args) -> None:
         print(json.dumps(bench_update(args.repeat, args.threads)), flush=True)
     if "framework" in parts:
         for n_flights in (1, 16):
-            print(json.dumps(bench_framework(args.repeat, args.threads, n_flights)), flush=True)
+            print(json.dumps(bench_framework(args.repeat, args.threads, n_flights,
+                                             args.ensemble)), flush=True)
     if "framework_old" in parts:
         for n_flights in (1, 16):
             print(json.dumps(bench_framework_rendered_twice(args.repeat, args.threads,
                                                             n_flights)), flush=True)
     if "eval" in parts:
         for workers in [int(w) for w in args.eval_workers.split(",")]:
-            for row in bench_eval(args.eval_flights, args.threads, workers):
+            for row in bench_eval(args.eval_flights, args.threads, workers, args.ensemble):
                 print(json.dumps(row), flush=True)
 
 
@@ -311,6 +324,8 @@ def main():
     p.add_argument("--eval-flights", type=int, default=2000)
     p.add_argument("--eval-workers", default="1",
                    help="comma list of process counts for the eval part, e.g. 1,2")
+    p.add_argument("--ensemble", type=int, default=1,
+                   help="framework and eval parts: fly N copies of the D3RQN as an ensemble")
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.child:
@@ -320,7 +335,7 @@ def main():
                OPENBLAS_NUM_THREADS=str(args.threads), MKL_NUM_THREADS=str(args.threads))
     cmd = [sys.executable, os.path.abspath(__file__), "--child", "--threads", str(args.threads),
            "--repeat", str(args.repeat), "--eval-flights", str(args.eval_flights),
-           "--eval-workers", args.eval_workers]
+           "--eval-workers", args.eval_workers, "--ensemble", str(args.ensemble)]
     if args.only:
         cmd += ["--only", args.only]
     sys.exit(subprocess.run(cmd, env=env).returncode)
