@@ -208,7 +208,7 @@ class QNetPolicy(Policy):
 
 class EnsemblePolicy(Policy):
     """Greedy on the mean of several Q-nets' Q-values (each with its own recurrent
-    state): an ablation, not the paper's method.
+    state): our addition, not the paper's method.
 
     Nets trained from different seeds make different mistakes away from their training
     world (docs/results.md, Table 6); averaging their Q-values before the argmax votes
