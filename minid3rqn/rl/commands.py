@@ -71,6 +71,14 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth-model", default=None, help="DepthEstimator .npz (--depth pred)")
     p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
     p.add_argument("--eps-start", type=float, default=d.eps_start)
+    p.add_argument("--lr", type=float, default=d.agent.lr, help="Adam step size (paper: 3e-4)")
+    p.add_argument("--teachers", default="",
+                   help="distil instead of Q-learning (ours; rl/distill.py): the teacher's "
+                        "Q-net .npz, or several joined by '+', flown on GT depth")
+    p.add_argument("--teacher-mix", type=float, default=d.teacher_mix,
+                   help="probability of flying the teacher's action at the start (--teachers)")
+    p.add_argument("--teacher-mix-steps", type=int, default=d.teacher_mix_steps,
+                   help="transitions over which that probability falls to 0 (--teachers)")
     p.add_argument("--out", default=None, help="run folder (default runs/agent/<name>)")
     p.add_argument("--resume", action="store_true")
     p.add_argument("--ship", default=None, help="also copy the model to minid3rqn/models/NAME.npz")
@@ -87,7 +95,10 @@ def config_from_args(args):
                       total_steps=args.steps, learning_starts=args.learning_starts,
                       updates_per_step=args.updates_per_step, eps_decay_steps=args.eps_decay,
                       replay_capacity=args.replay, hidden=args.hidden, depth=args.depth,
-                      init_model=args.init_model, eps_start=args.eps_start)
+                      init_model=args.init_model, eps_start=args.eps_start,
+                      teachers=args.teachers, teacher_mix=args.teacher_mix,
+                      teacher_mix_steps=args.teacher_mix_steps)
+    cfg.agent.lr = args.lr
     cfg.flights.n_worlds = args.worlds
     if args.smoke:
         from .flights import FlightsConfig
@@ -99,12 +110,21 @@ def config_from_args(args):
 
 def run_name(cfg) -> str:
     stack = f"_stack{cfg.stack}" if cfg.stack > 1 else ""
-    return f"{cfg.variant}{stack}_{cfg.scenario}_{cfg.depth}_s{cfg.seed}"
+    distil = "_distil" if cfg.teachers else ""
+    return f"{cfg.variant}{stack}{distil}_{cfg.scenario}_{cfg.depth}_s{cfg.seed}"
 
 
 def run_train_agent(args) -> int:
     from .train import train
     cfg = config_from_args(args)
+    if cfg.teachers:                      # a bad teacher spec: say so before any training
+        from ..world import ACTIONS, Camera
+        from .distill import load_teacher
+        cam = Camera()
+        try:
+            load_teacher(cfg.teachers, (cam.height, cam.width), len(ACTIONS))
+        except ValueError as e:
+            raise SystemExit(f"train-agent --teachers: {e}")
     out = Path(args.out) if args.out else RUNS / "agent" / (("smoke_" if args.smoke else "")
                                                            + run_name(cfg))
     est = _estimator_for(cfg.depth, args.depth_model, cfg.scenario)

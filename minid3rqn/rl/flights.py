@@ -116,6 +116,12 @@ class Flights:
         frames = np.clip(depth, 0.0, self.cfg.max_depth) / self.cfg.max_depth
         return depth, frames.astype(np.float32), rgb
 
+    def gt_frames(self) -> np.ndarray:
+        """GT depth frames (n, H, W) in [0, 1] of every flight at its current pose, in
+        either depth mode: what a privileged teacher sees (``rl.distill``)."""
+        depth = depth_only(self.batch, self.poses, self.camera)
+        return (np.clip(depth, 0.0, self.cfg.max_depth) / self.cfg.max_depth).astype(np.float32)
+
     def _sub_batch(self, idx) -> SceneBatch:
         """The worlds of flights ``idx`` as a SceneBatch."""
         return self.batch if len(idx) == self.n else self.batch.subset(idx)

@@ -168,6 +168,25 @@ class QNetPolicy(Policy):
                                     np.float32)
             self.seen = np.zeros(n, np.int64)
 
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The flights' memory (frame stack, recurrent state), to resume a run exactly."""
+        state = {"stack": self.stacker.buf, "fresh": self.fresh}
+        if self.state is not None:
+            state["h"], state["c"] = self.state[0].data, self.state[1].data
+        if self.window:
+            state["history"], state["seen"] = self.history, self.seen
+        return {k: np.array(v) for k, v in state.items()}
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        from ..autograd import Tensor
+        self.stacker.buf[...] = state["stack"]
+        self.fresh[...] = state["fresh"]
+        if "h" in state:
+            self.state = (Tensor(np.array(state["h"])), Tensor(np.array(state["c"])))
+        if self.window:
+            self.history[...] = state["history"]
+            self.seen[...] = state["seen"]
+
     def act(self, obs, started=None):
         frames = np.asarray(obs["frames"], dtype=np.float32)
         started = self.fresh if started is None else (np.asarray(started, bool) | self.fresh)
@@ -238,6 +257,15 @@ class EnsemblePolicy(Policy):
         self.n = n
         for m in self.members:
             m.reset(n)
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {f"{i}.{k}": v for i, m in enumerate(self.members)
+                for k, v in m.state_dict().items()}
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        for i, m in enumerate(self.members):
+            m.load_state_dict({k[len(f"{i}."):]: v for k, v in state.items()
+                               if k.startswith(f"{i}.")})
 
     def act(self, obs, started=None):
         for m in self.members:

@@ -39,13 +39,15 @@ class SequenceBatch:
 
     obs (L+1, B, stack, H, W) float32; actions (L, B) int64; rewards (L, B) float32;
     terminals (L, B) float32 (1 = collision, no bootstrap); mask (L, B) float32
-    (0 past the episode's end).
+    (0 past the episode's end); labels (L, B, A) float32, a teacher's Q-values of each
+    step's observation (``rl.distill.LabelledReplay`` only; None otherwise).
     """
     obs: np.ndarray
     actions: np.ndarray
     rewards: np.ndarray
     terminals: np.ndarray
     mask: np.ndarray
+    labels: np.ndarray | None = None
 
 
 class EpisodeReplay:

@@ -52,6 +52,10 @@ class TrainConfig:
     log_every: int = 2_000         # transitions between learning-curve rows
     checkpoint_every: int = 10_000  # transitions between checkpoints
     init_model: str = ""           # start from these Q-net weights (fine-tuning), if set
+    # -- distillation (ours, optional; rl/distill.py): a teacher flown on GT depth -------
+    teachers: str = ""             # '+'-joined Q-net files; set -> learn the teacher's Q-values
+    teacher_mix: float = 0.5       # probability of flying the teacher's action at the start,
+    teacher_mix_steps: int = 10_000  # decayed linearly to 0 over this many transitions
     agent: AgentConfig = field(default_factory=AgentConfig)
     flights: FlightsConfig = field(default_factory=FlightsConfig)
 
@@ -93,6 +97,9 @@ class Trainer:
     """Holds the run's state; ``run()`` trains to ``total_steps`` (resumable)."""
 
     def __init__(self, cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True):
+        if cfg.teachers and not hasattr(self, "learn_from_teacher"):
+            raise ValueError("Trainer: cfg.teachers is set, which asks for distillation; "
+                             "use rl.distill.Distiller (or rl.train.train, which picks it)")
         self.cfg = cfg
         self.out = Path(out_dir)
         self.out.mkdir(parents=True, exist_ok=True)
@@ -108,8 +115,7 @@ class Trainer:
         if cfg.init_model:
             self.agent.online.load(cfg.init_model)
             self.agent.target.copy_from(self.agent.online)
-        self.replay = EpisodeReplay(cfg.replay_capacity, cfg.n_envs, self.frame_shape,
-                                    seed=replay_seed)
+        self.replay = self.make_replay(replay_seed)
         self.rng = np.random.default_rng(act_seed)
         self.steps = 0
         self.update_credit = 0.0
@@ -122,6 +128,10 @@ class Trainer:
         self.state = None
         self.stacker = FrameStacker(cfg.n_envs, cfg.stack, self.frame_shape)
 
+    def make_replay(self, seed) -> EpisodeReplay:
+        return EpisodeReplay(self.cfg.replay_capacity, self.cfg.n_envs, self.frame_shape,
+                             seed=seed)
+
     # -- the loop -------------------------------------------------------------------
     def _start(self):
         frames = self.flights.reset()
@@ -129,10 +139,23 @@ class Trainer:
         self.stacker.reset(np.arange(self.cfg.n_envs), frames)
         self.state = self.agent.initial_state(self.cfg.n_envs)
 
+    def choose_actions(self) -> np.ndarray:
+        """Step 1: epsilon-greedy on the online net; the recurrent state advances."""
+        eps = epsilon_at(self.cfg, self.steps)
+        actions, _, self.state = self.agent.act(self.stacker.obs, self.state, eps, self.rng)
+        return actions
+
+    def episodes_ended(self, done: np.ndarray) -> None:
+        """Flights in ``done`` (bool (n,)) start a new episode: zero their state."""
+        self.state = self.agent.reset_state(self.state, done)
+
+    def learn(self, batch) -> dict:
+        """Step 3: one double-Q update on a window batch."""
+        return self.agent.update(batch)
+
     def vector_step(self):
         cfg = self.cfg
-        eps = epsilon_at(cfg, self.steps)
-        actions, _, self.state = self.agent.act(self.stacker.obs, self.state, eps, self.rng)
+        actions = self.choose_actions()
         res = self.flights.step(actions)
         done = res.terminated | res.truncated
         self.replay.add_step(actions, res.rewards, res.terminated, res.truncated,
@@ -149,7 +172,7 @@ class Trainer:
             self._len[idx] = 0
             self.episodes += len(idx)
             self.replay.start_episodes(idx, res.frames[idx])
-            self.state = self.agent.reset_state(self.state, done)
+            self.episodes_ended(done)
         live = np.flatnonzero(~done)
         self.stacker.push(res.frames[live], live)
         if done.any():
@@ -160,7 +183,7 @@ class Trainer:
             while self.update_credit >= 1.0:
                 self.update_credit -= 1.0
                 batch = self.replay.sample(cfg.batch_size, cfg.seq_len, cfg.stack)
-                info = self.agent.update(batch)
+                info = self.learn(batch)
                 self._window["loss"].append(info["loss"])
                 self._window["q"].append(info["q_mean"])
 
@@ -173,12 +196,17 @@ class Trainer:
                "length": float(np.mean(w["lengths"])) if w["lengths"] else float("nan"),
                "loss": float(np.mean(w["loss"])) if w["loss"] else float("nan"),
                "q_mean": float(np.mean(w["q"])) if w["q"] else float("nan"),
-               "seconds": round(elapsed, 1)}
+               "seconds": round(elapsed, 1), **self.extra_row()}
         self.curve.append(row)
         for v in w.values():
             v.clear()
         self.write_curve()
         return row
+
+    def extra_row(self) -> dict:
+        """More learning-curve columns (a subclass's); reads ``self._window`` before it is
+        cleared."""
+        return {}
 
     def write_curve(self):
         if not self.curve:
@@ -238,6 +266,7 @@ class Trainer:
         arrays["len"] = self._len
         if self.state is not None:
             arrays["state_h"], arrays["state_c"] = self.state[0].data, self.state[1].data
+        arrays.update(self.extra_state())
         meta = {"config": self.cfg.to_dict(), "steps": self.steps, "episodes": self.episodes,
                 "update_credit": self.update_credit, "curve": self.curve,
                 "window": self._window, "rng": _rng_state(self.rng),
@@ -246,6 +275,13 @@ class Trainer:
         save_npz(path, arrays, meta)
         self.save_model(self.out / "model.npz")
         return path
+
+    def extra_state(self) -> dict[str, np.ndarray]:
+        """More arrays for the checkpoint (a subclass's), given back to ``load_extra_state``."""
+        return {}
+
+    def load_extra_state(self, arrays: dict[str, np.ndarray]) -> None:
+        pass
 
     def save_model(self, path, extra: dict | None = None) -> Path:
         meta = {"kind": "qnet", "qnet_config": self.agent.qnet_config.to_dict(),
@@ -273,6 +309,7 @@ class Trainer:
         tr._len[...] = arrays["len"]
         if "state_h" in arrays:
             tr.state = (Tensor(arrays["state_h"].copy()), Tensor(arrays["state_c"].copy()))
+        tr.load_extra_state(arrays)
         tr.steps, tr.episodes = meta["steps"], meta["episodes"]
         tr.update_credit = meta["update_credit"]
         tr.curve = meta["curve"]
@@ -286,11 +323,15 @@ class Trainer:
 def train(cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True,
           resume: bool = False) -> Trainer:
     """Train (or resume, if ``resume`` and a checkpoint exists) and return the trainer."""
+    cls = Trainer
+    if cfg.teachers:                      # distillation from a privileged teacher
+        from .distill import Distiller
+        cls = Distiller
     ckpt = Path(out_dir) / "checkpoint.npz"
     if resume and ckpt.exists():
-        tr = Trainer.resume(out_dir, depth_estimator, progress, total_steps=cfg.total_steps)
+        tr = cls.resume(out_dir, depth_estimator, progress, total_steps=cfg.total_steps)
     else:
-        tr = Trainer(cfg, out_dir, depth_estimator, progress)
+        tr = cls(cfg, out_dir, depth_estimator, progress)
     tr.run()
     return tr
 

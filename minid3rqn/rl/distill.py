@@ -1,0 +1,181 @@
+"""Distillation from a privileged teacher: our addition, not the paper's method.
+
+Why. A D3RQN trained long on ground-truth depth flies far better than the same net on
+the DispNet's predicted depth (docs/results.md: 0.95 against 0.87 in ``basic``), and
+an ensemble of five such nets better still (0.97). Fine-tuning on predicted depth by
+Q-learning (the shipped recipe) must rediscover, from rewards alone, how to read the
+DispNet's errors. A teacher that sees the true depth can instead *tell* the student,
+at every frame, how good each action is. This is the idea behind "learning by
+cheating" (Chen et al. 2019) and DAgger (Ross et al. 2011), with a Q-net as both
+teacher and student (policy distillation, Rusu et al. 2016).
+
+What. Flights are flown exactly as in Q-learning (``rl.train``), with two changes:
+
+    1. the teacher (one Q-net file or an ensemble, 'A.npz+B.npz+...') reads the GT depth
+       frame of every flight at every step (``Flights.gt_frames``), carrying its own
+       recurrent state through the flight, and its Q-values Q_T(o_t, .) are stored in
+       the replay beside the student's predicted-depth frame o_t (``LabelledReplay``);
+    2. the flights fly the teacher's greedy action with probability beta (the "mix"),
+       else the student's: beta falls linearly from ``teacher_mix`` to 0 over
+       ``teacher_mix_steps`` transitions. At first the data follows the teacher's
+       flights; later the student's own, so it learns what to do in the states *its*
+       mistakes lead to (DAgger).
+
+The update replaces the double-Q loss: on a window of L = 5 steps from a zero state
+(as in Q-learning, ``rl.agent``), the student's Q-values of every action regress onto
+the teacher's:
+
+    L = mean over unmasked (t, b) and actions a of Huber(Q_S(o_t, a) - Q_T(o_t, a))
+
+Rewards are still stored (the learning curve reports them) but not learned from. The
+student is a D3RQN like any other: ``evaluate`` and ``fly`` read its file unchanged.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .. import autograd as ag
+from ..autograd.losses import huber_loss
+from ..autograd.optim import clip_grad_norm
+from .replay import EpisodeReplay
+from .train import TrainConfig, Trainer
+
+
+class LabelledReplay(EpisodeReplay):
+    """``EpisodeReplay`` that also stores, for every frame, the teacher's Q-values of it.
+
+    ``label_latest(q)`` labels the newest frame of every stream (o_t, before the action
+    taken from it is added); ``sample`` returns them as ``batch.labels`` (L, B, A),
+    aligned with ``batch.obs[:L]``.
+    """
+
+    def __init__(self, capacity: int, n_streams: int, frame_shape, n_actions: int, seed=None):
+        super().__init__(capacity, n_streams, frame_shape, seed=seed)
+        self.labels = np.zeros((self.n_streams, self.cap, int(n_actions)), dtype=np.float32)
+
+    def label_latest(self, q: np.ndarray) -> None:
+        q = np.asarray(q, dtype=np.float32)
+        if q.shape != (self.n_streams, self.labels.shape[2]):
+            raise ValueError(f"LabelledReplay.label_latest: q must be (n_streams, n_actions) = "
+                             f"{(self.n_streams, self.labels.shape[2])}; got {q.shape}")
+        if (self.open_start < 0).any():
+            raise RuntimeError("LabelledReplay.label_latest: every stream needs an open "
+                               "episode (start_episodes first)")
+        self.labels[np.arange(self.n_streams), (self.count - 1) % self.cap] = q
+
+    def _gather(self, streams, starts, L, stack):
+        batch = super()._gather(streams, starts, L, stack)
+        slot = (starts[:, None] + np.arange(L)[None, :]) % self.cap       # (B, L)
+        labels = self.labels[streams[:, None], slot].transpose(1, 0, 2)   # (L, B, A)
+        batch.labels = labels * batch.mask[:, :, None]
+        return batch
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {**super().state_dict(), "labels": self.labels}
+
+
+def load_teacher(spec: str, frame_shape, n_actions: int):
+    """'A.npz' or 'A.npz+B.npz+...' -> a QNetPolicy or an EnsemblePolicy, checked to
+    read frames of ``frame_shape`` and to score ``n_actions`` actions."""
+    from .policies import EnsemblePolicy, QNetPolicy
+    parts = str(spec).split("+")
+    if not spec or any(not p for p in parts):
+        raise ValueError(f"teachers: expected Q-net .npz files joined by '+'; got {spec!r}")
+    members = []
+    for p in parts:
+        if not Path(p).is_file():
+            raise ValueError(f"teachers: {p!r} is not a file (expected a Q-net .npz from "
+                             f"train-agent)")
+        pol = QNetPolicy.load(p, name=Path(p).parent.name or Path(p).stem)
+        cfg = pol.qnet.config
+        got = ((cfg.height, cfg.width_px), cfg.n_actions)
+        if got != (tuple(frame_shape), int(n_actions)):
+            raise ValueError(f"teachers: {p!r} reads {got[0]} frames and scores {got[1]} "
+                             f"actions; the student needs {tuple(frame_shape)} and {n_actions}")
+        members.append(pol)
+    return members[0] if len(members) == 1 else EnsemblePolicy(members, name="teacher")
+
+
+class Distiller(Trainer):
+    """``Trainer`` whose student learns the teacher's Q-values; see the module docstring."""
+
+    learn_from_teacher = True
+
+    def __init__(self, cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True):
+        if not cfg.teachers:
+            raise ValueError("Distiller: cfg.teachers is empty; give the teacher's Q-net "
+                             "file(s), 'A.npz' or 'A.npz+B.npz+...'")
+        if not 0.0 <= cfg.teacher_mix <= 1.0:
+            raise ValueError(f"Distiller: teacher_mix is a probability in [0, 1]; got "
+                             f"{cfg.teacher_mix}")
+        if cfg.teacher_mix_steps < 1:
+            raise ValueError(f"Distiller: teacher_mix_steps must be >= 1; got "
+                             f"{cfg.teacher_mix_steps}")
+        super().__init__(cfg, out_dir, depth_estimator, progress)
+        self.teacher = load_teacher(cfg.teachers, self.frame_shape, self.flights.n_actions)
+        self.teacher.reset(cfg.n_envs)
+        self.teacher_started = np.ones(cfg.n_envs, bool)
+        self._window["agree"] = []
+
+    def make_replay(self, seed) -> LabelledReplay:
+        return LabelledReplay(self.cfg.replay_capacity, self.cfg.n_envs, self.frame_shape,
+                              self.flights.n_actions, seed=seed)
+
+    def teacher_mix_at(self, step: int) -> float:
+        """beta: linear from ``teacher_mix`` to 0 over ``teacher_mix_steps`` transitions."""
+        frac = min(1.0, step / self.cfg.teacher_mix_steps)
+        return self.cfg.teacher_mix * (1.0 - frac)
+
+    # -- the loop (rl.train.Trainer.vector_step calls these) -------------------------
+    def choose_actions(self) -> np.ndarray:
+        gt = {"frames": self.flights.gt_frames()}
+        teacher_a = self.teacher.act(gt, started=self.teacher_started)
+        self.teacher_started[:] = False
+        self.replay.label_latest(self.teacher.last_q)          # Q_T(o_t, .)
+        q, self.state = self.agent.q_values(self.stacker.obs, self.state)
+        student_a = np.argmax(q, axis=1)
+        self._window["agree"].append(float(np.mean(student_a == teacher_a)))
+        fly_teacher = self.rng.random(len(student_a)) < self.teacher_mix_at(self.steps)
+        return np.where(fly_teacher, teacher_a, student_a).astype(np.int64)
+
+    def episodes_ended(self, done: np.ndarray) -> None:
+        super().episodes_ended(done)
+        self.teacher_started |= np.asarray(done, bool)
+
+    def learn(self, batch) -> dict:
+        """One step of the distillation loss (module docstring) with Adam."""
+        L = batch.labels.shape[0]
+        q_all, _ = self.agent.online(batch.obs)                  # (L+1, B, A), with graph
+        q = q_all[:L]
+        per = huber_loss(q, batch.labels, delta=self.agent.config.huber_delta, reduction="none")
+        mask = np.broadcast_to(batch.mask[:, :, None], batch.labels.shape).astype(np.float32)
+        loss = ag.sum(per * mask) * (1.0 / max(1.0, float(mask.sum())))
+        opt = self.agent.optimizer
+        opt.zero_grad()
+        loss.backward()
+        grad_norm = clip_grad_norm(self.agent.online.parameters(), self.agent.config.grad_clip)
+        opt.step()
+        self.agent.updates += 1
+        q_mean = float((q.data * mask).sum() / max(1.0, mask.sum()))
+        return {"loss": float(loss.data), "q_mean": q_mean, "grad_norm": grad_norm}
+
+    # -- the learning curve and the checkpoint --------------------------------------
+    def extra_row(self) -> dict:
+        agree = self._window.get("agree", [])
+        return {"epsilon": 0.0, "teacher_mix": round(self.teacher_mix_at(self.steps), 4),
+                "agree": float(np.mean(agree)) if agree else float("nan")}
+
+    def extra_state(self) -> dict[str, np.ndarray]:
+        state = {f"teacher.{k}": v for k, v in self.teacher.state_dict().items()}
+        state["teacher_started"] = self.teacher_started.copy()
+        return state
+
+    def load_extra_state(self, arrays: dict[str, np.ndarray]) -> None:
+        self.teacher.load_state_dict({k[len("teacher."):]: v for k, v in arrays.items()
+                                      if k.startswith("teacher.")})
+        self.teacher_started[...] = arrays["teacher_started"]
+
+
+__all__ = ["Distiller", "LabelledReplay", "load_teacher"]

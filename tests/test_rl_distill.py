@@ -1,0 +1,167 @@
+"""Distillation from a privileged teacher (rl/distill.py): labels, mixing, loss, resume, errors."""
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from minid3rqn.rl import commands
+from minid3rqn.rl.agent import AgentConfig
+from minid3rqn.rl.distill import Distiller, LabelledReplay, load_teacher
+from minid3rqn.rl.flights import Flights, FlightsConfig
+from minid3rqn.rl.train import TrainConfig, Trainer, train
+
+pytestmark = pytest.mark.rl
+
+ROOT = Path(__file__).resolve().parent.parent
+TEACHER = str(ROOT / "minid3rqn" / "models" / "d3rqn_basic.npz")
+
+
+def small_config(**kw) -> TrainConfig:
+    base = dict(total_steps=96, learning_starts=32, n_envs=4, log_every=32, checkpoint_every=48,
+                hidden=16, replay_capacity=1000, teachers=TEACHER, teacher_mix=0.5,
+                teacher_mix_steps=64, flights=FlightsConfig(n_worlds=2))
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def test_labelled_replay_labels_stay_with_their_frames():
+    """Frame k carries label k, through episode ends and ring wrap-around."""
+    rng = np.random.default_rng(0)
+    rep = LabelledReplay(capacity=48, n_streams=2, frame_shape=(2, 3), n_actions=5, seed=1)
+    k = 1
+
+    def frame_and_label():
+        nonlocal k
+        f = np.full((2, 2, 3), 0.0, np.float32)
+        f[0], f[1] = k / 255.0, (k + 1) / 255.0
+        q = np.stack([np.full(5, k, np.float32), np.full(5, k + 1, np.float32)])
+        k = (k + 2) % 250 + 1
+        return f, q
+
+    f, q = frame_and_label()
+    rep.start_episodes([0, 1], f)
+    for t in range(80):
+        rep.label_latest(q)
+        f, q = frame_and_label()
+        done = rng.random(2) < 0.15
+        rep.add_step(np.zeros(2, np.int64), np.zeros(2), done, np.zeros(2, bool), f)
+        if done.any():
+            idx = np.flatnonzero(done)
+            f2, q2 = frame_and_label()
+            f[idx], q[idx] = f2[idx], q2[idx]
+            rep.start_episodes(idx, f2[idx])
+    batch = rep.sample(64, seq_len=5)
+    frame_id = np.rint(batch.obs[:5, :, 0, 0, 0] * 255.0)          # (L, B)
+    ok = batch.mask > 0
+    assert ok.sum() > 100
+    np.testing.assert_array_equal(batch.labels[..., 0][ok], frame_id[ok])
+    assert np.all(batch.labels[~ok] == 0)
+    with pytest.raises(ValueError, match="n_streams, n_actions"):
+        rep.label_latest(np.zeros((3, 5)))
+
+
+class _Flat:
+    """A stand-in depth estimator: 5 m everywhere."""
+
+    def predict(self, rgb):
+        return np.full(rgb.shape[:3], 5.0, np.float32)
+
+
+def test_gt_frames_are_the_gt_observation_in_pred_mode():
+    cfg = FlightsConfig(n_worlds=2)
+    gt = Flights("basic", 3, seed=4, config=cfg, depth="gt")
+    pred = Flights("basic", 3, seed=4, config=cfg, depth="pred", depth_estimator=_Flat())
+    pred.reset()
+    np.testing.assert_array_equal(pred.gt_frames(), gt.reset())
+    a = np.array([1, 2, 0])
+    gt.step(a)
+    res = pred.step(a)
+    assert np.allclose(res.frames, 0.5)                     # the student sees the estimator
+    np.testing.assert_array_equal(pred.gt_frames(), gt.frames)
+
+
+def test_full_teacher_mix_flies_the_teachers_actions(tmp_path):
+    d = Distiller(small_config(teacher_mix=1.0, teacher_mix_steps=10 ** 9), tmp_path,
+                  progress=False)
+    d._start()
+    d._started = True
+    for _ in range(6):
+        actions = d.choose_actions()
+        np.testing.assert_array_equal(actions, np.argmax(d.teacher.last_q, axis=1))
+        res = d.flights.step(actions)
+        done = res.terminated | res.truncated
+        d.replay.add_step(actions, res.rewards, res.terminated, res.truncated, res.final_frames)
+        if done.any():
+            d.replay.start_episodes(np.flatnonzero(done), res.frames[done])
+            d.episodes_ended(done)
+        d.stacker.push(res.frames)
+
+
+def test_teacher_mix_decays_linearly_to_zero(tmp_path):
+    d = Distiller(small_config(teacher_mix=0.8, teacher_mix_steps=100), tmp_path, progress=False)
+    assert d.teacher_mix_at(0) == pytest.approx(0.8)
+    assert d.teacher_mix_at(50) == pytest.approx(0.4)
+    assert d.teacher_mix_at(100) == 0.0 and d.teacher_mix_at(10 ** 6) == 0.0
+
+
+def test_distillation_lowers_the_loss_on_a_fixed_batch(tmp_path):
+    """The update moves the student's Q-values toward the teacher's labels."""
+    cfg = small_config(total_steps=64, learning_starts=10 ** 6, agent=AgentConfig(lr=1e-2))
+    d = Distiller(cfg, tmp_path, progress=False)
+    d.run()
+    batch = d.replay.sample(8, seq_len=5)
+    target = float((batch.labels * batch.mask[:, :, None]).sum() / (5 * batch.mask.sum()))
+    losses, q_means = [], []
+    for _ in range(25):
+        info = d.learn(batch)
+        losses.append(info["loss"])
+        q_means.append(info["q_mean"])
+    assert losses[-1] < losses[0]
+    assert np.all(np.diff(losses) < 0)
+    assert abs(q_means[-1] - target) < abs(q_means[0] - target)
+
+
+def test_distillation_smoke_and_exact_resume(tmp_path):
+    cfg = small_config()
+    a = Distiller(cfg, tmp_path / "a", progress=False)
+    a.run(until=48)
+    a.save_checkpoint()
+    b = Distiller.resume(tmp_path / "a", progress=False)
+    a.run()
+    b.run()
+    assert a.agent.updates > 0 and a.steps == 96
+    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
+        np.testing.assert_array_equal(p.data, q.data)
+    assert {"teacher_mix", "agree"} <= set(a.curve[-1])
+    assert a.curve[-1]["teacher_mix"] == 0.0
+
+
+def test_train_picks_the_distiller_and_plain_trainer_refuses_teachers(tmp_path):
+    tr = train(small_config(total_steps=32, learning_starts=16), tmp_path, progress=False)
+    assert isinstance(tr, Distiller)
+    with pytest.raises(ValueError, match="Distiller"):
+        Trainer(small_config(), tmp_path / "t", progress=False)
+
+
+def test_bad_teachers_get_clear_errors(tmp_path):
+    shape, n = (32, 104), 5
+    with pytest.raises(ValueError, match="not a file"):
+        load_teacher(str(tmp_path / "missing.npz"), shape, n)
+    with pytest.raises(ValueError, match="joined by"):
+        load_teacher(TEACHER + "+", shape, n)
+    with pytest.raises(ValueError, match="not a file"):
+        load_teacher("random", shape, n)
+    with pytest.raises(ValueError, match="actions"):
+        load_teacher(TEACHER, shape, 7)
+    assert load_teacher(TEACHER + "+" + TEACHER, shape, n).name == "teacher"
+    with pytest.raises(ValueError, match="teacher_mix"):
+        Distiller(small_config(teacher_mix=1.5), tmp_path, progress=False)
+    with pytest.raises(ValueError, match="teachers"):
+        Distiller(small_config(teachers=""), tmp_path, progress=False)
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    args = p.parse_args(["--smoke", "--quiet", "--teachers", "random", "--out",
+                         str(tmp_path / "cli")])
+    with pytest.raises(SystemExit, match="--teachers.*not a file"):
+        commands.run_train_agent(args)
