@@ -19,7 +19,8 @@ What. Flights are flown exactly as in Q-learning (``rl.train``), with two change
        else the student's: beta falls linearly from ``teacher_mix`` to 0 over
        ``teacher_mix_steps`` transitions. At first the data follows the teacher's
        flights; later the student's own, so it learns what to do in the states *its*
-       mistakes lead to (DAgger).
+       mistakes lead to (DAgger). There is no epsilon-greedy exploration (the
+       ``eps_*`` settings are unused): the teacher's actions are the exploration.
 
 The update replaces the double-Q loss: on a window of L = 5 steps from a zero state
 (as in Q-learning, ``rl.agent``), the student's Q-values of every action regress onto
