@@ -5,8 +5,9 @@ training loop, batched evaluation (success rate with a Wilson interval), baselin
     replay.py    episodic replay sampled as windows that never cross episodes
     agent.py     epsilon-greedy acting with recurrent state, double-Q update
     train.py     the loop, checkpoints and exact resume, learning curves
+    distill.py   ours: a student on predicted depth learns a GT-depth teacher's Q-values
     evaluate.py  success rate over N flights, Wilson 95% interval
-    policies.py  Straight, Random, Reactive, Oracle, QNetPolicy
+    policies.py  Straight, Random, Reactive, Oracle, QNetPolicy, EnsemblePolicy (ours)
     fly.py       the main job: GIF + success rate with the shipped model
     commands.py  CLI hooks (train-agent, evaluate, fly, reproduce)
 """
@@ -16,3 +17,4 @@ from .flights import Flights, FlightsConfig
 from .policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy, StraightPolicy)
 from .replay import EpisodeReplay, SequenceBatch
 from .train import TrainConfig, Trainer, train
+from .distill import Distiller, LabelledReplay
