@@ -102,7 +102,7 @@ def load_teacher(spec: str, frame_shape, n_actions: int):
 class Distiller(Trainer):
     """``Trainer`` whose student learns the teacher's Q-values; see the module docstring."""
 
-    learn_from_teacher = True
+    learns_from_teacher = True
 
     def __init__(self, cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True):
         if not cfg.teachers:

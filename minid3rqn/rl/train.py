@@ -96,8 +96,10 @@ def _set_rng_state(rng: np.random.Generator, s: str) -> None:
 class Trainer:
     """Holds the run's state; ``run()`` trains to ``total_steps`` (resumable)."""
 
+    learns_from_teacher = False          # rl.distill.Distiller: True
+
     def __init__(self, cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True):
-        if cfg.teachers and not hasattr(self, "learn_from_teacher"):
+        if cfg.teachers and not self.learns_from_teacher:
             raise ValueError("Trainer: cfg.teachers is set, which asks for distillation; "
                              "use rl.distill.Distiller (or rl.train.train, which picks it)")
         self.cfg = cfg
