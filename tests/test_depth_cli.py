@@ -35,6 +35,9 @@ def test_collect_train_eval_smoke(tmp_path, capsys):
     assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
                  str(run / "test.npz"), "--json", str(tmp_path / "m.json")]) == 0
     assert 0 <= json.loads((tmp_path / "m.json").read_text())["a1"] <= 1
+    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
+                 str(run / "test.npz"), "--flip-tta", "--json", str(tmp_path / "f.json")]) == 0
+    assert 0 <= json.loads((tmp_path / "f.json").read_text())["a1"] <= 1
     # --posenet: the checkpoint's PoseNet is judged too, and equals the training's own
     # final pose evaluation; a model file (DispNet only) is refused by name
     assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",

@@ -154,6 +154,29 @@ def test_inference_is_a_snapshot_and_refresh_rereads_weights():
     np.testing.assert_allclose(after, est.scale / est.predict_disp_autograd(rgb), rtol=2e-5)
 
 
+def test_flip_averages_the_mirrored_prediction_and_is_mirror_equivariant():
+    net = _random_net(np.float32, encoder=(8, 12), decoder=(4, 8), n_scales=2)
+    plain = DepthEstimator(net, 2.0, {"height": 16, "width": 24})
+    flip = DepthEstimator(net, 2.0, {"height": 16, "width": 24}, flip=True)
+    rgb = np.random.default_rng(12).integers(0, 256, (3, 16, 24, 3), dtype=np.uint8)
+    mirrored = np.ascontiguousarray(rgb[:, :, ::-1])
+    want = 0.5 * (plain.predict_disp(rgb) + plain.predict_disp(mirrored)[:, :, ::-1])
+    np.testing.assert_allclose(flip.predict_disp(rgb), want, rtol=1e-6)
+    assert not np.allclose(flip.predict_disp(rgb), plain.predict_disp(rgb))
+    # A mirrored world gives the mirrored depth map (exactly, up to float32 round-off),
+    # whatever the network: the point of averaging the two views.
+    np.testing.assert_allclose(flip.predict(mirrored), flip.predict(rgb)[:, :, ::-1],
+                               rtol=1e-6)
+    # One frame alone: the same, to the round-off of a different batch size.
+    np.testing.assert_allclose(flip.predict(rgb[1]), flip.predict(rgb)[1], rtol=1e-4)
+
+
+def test_load_with_flip(tmp_path):
+    net = _random_net(np.float32, encoder=(8, 12), decoder=(4, 8), n_scales=2)
+    path = DepthEstimator(net, 2.0, {"height": 16, "width": 24}).save(tmp_path / "m.npz")
+    assert not DepthEstimator.load(path).flip and DepthEstimator.load(path, flip=True).flip
+
+
 # -- the shipped model on rendered frames ------------------------------------------------
 @pytest.mark.skipif(not SHIPPED.exists(), reason="no shipped depth model")
 def test_shipped_model_predict_matches_the_autograd_path():

@@ -20,6 +20,7 @@ pytestmark = pytest.mark.rl
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "minid3rqn" / "models" / "d3rqn_basic.npz"
+SHIPPED_DEPTH = ROOT / "minid3rqn" / "models" / "depth_basic.npz"
 
 
 def test_wilson_interval():
@@ -142,6 +143,12 @@ def test_cli_smoke(tmp_path):
                          "--json", str(tmp_path / "r.jsonl")])
     assert commands.run_evaluate(args) == 0
     assert len((tmp_path / "r.jsonl").read_text().splitlines()) == 2
+    if SHIPPED_DEPTH.exists():                        # predicted depth, flip-averaged
+        args = p.parse_args([str(model), "--flights", "2", "--steps", "3", "--quiet",
+                             "--depth", "pred", "--flip-tta", "--json",
+                             str(tmp_path / "f.jsonl")])
+        assert commands.run_evaluate(args) == 0
+        assert "--flip-tta" in json.loads((tmp_path / "f.jsonl").read_text())["command"]
     ens = commands.make_policy(f"{model}+{model}")          # an ensemble spec
     assert ens.name.endswith("-ens2") and len(ens.members) == 2
     for bad in (f"{model}+random", f"{model}+"):

@@ -310,6 +310,9 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
                    help="the training seed: held-out frames use seed + 1000")
     p.add_argument("--test-frames", type=int, default=500)
     p.add_argument("--test-data", default=None)
+    p.add_argument("--flip-tta", action="store_true",
+                   help="average the disparity with its value on the mirrored frame, "
+                        "mirrored back (test-time flip; docs/depth.md section 7)")
     p.add_argument("--pictures", default=None, help="PNG: RGB | predicted | GT rows")
     p.add_argument("--json", default=None, help="write the metrics here")
     p.add_argument("--by-depth", action="store_true",
@@ -327,7 +330,7 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
 
 def run_eval_depth(args) -> int:
     from .evaluate import DepthEstimator, comparison_picture, evaluate
-    estimator = DepthEstimator.load(args.model)
+    estimator = DepthEstimator.load(args.model, flip=args.flip_tta)
     path = Path(args.test_data or RUNS / args.scenario / "test.npz")
     test = _ensure_data(path, args.scenario, args.test_frames, args.seed + TEST_SEED_OFFSET)
     posenet = None

@@ -52,10 +52,19 @@ class DepthEstimator:
         dispnet: a trained DispNet.
         scale: metres per unit of 1 / disp.
         meta: free-form metadata (command, seed, results) from the model file.
+        flip: test-time flip averaging (monodepth's post-processing, in its plain form):
+            the disparity is the mean of the network's disparity for the frame and,
+            flipped back, for the frame mirrored left-right. A left-right mirror of a
+            world is as likely as the world, so the network's errors on the two views
+            are partly independent and the mean is closer to the truth (docs/depth.md
+            section 7, "Test-time flip"). Twice the inference cost; off by default, and
+            not used in training.
     """
 
-    def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None):
+    def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None,
+                 flip: bool = False):
         self.net, self.scale, self.meta = dispnet, float(scale), meta or {}
+        self.flip = bool(flip)
         self._fast = None                   # DispNetInference, built at the first predict
         self.height = self.meta.get("height", 32)
         self.width = self.meta.get("width", 104)
@@ -69,7 +78,15 @@ class DepthEstimator:
         return save_npz(path, state, meta)
 
     @classmethod
-    def load(cls, path) -> "DepthEstimator":
+    def load(cls, path, flip: bool = False) -> "DepthEstimator":
+        """A model file written by ``save`` (or a train-depth checkpoint); ``flip``: see
+        the class doc."""
+        est = cls._load(path)
+        est.flip = bool(flip)
+        return est
+
+    @classmethod
+    def _load(cls, path) -> "DepthEstimator":
         arrays, meta = load_npz(path)
         if meta and "config" in meta and "iteration" in meta:       # a training checkpoint
             from .train import TrainConfig
@@ -118,12 +135,16 @@ class DepthEstimator:
         Equal (to float32 round-off) to ``predict_disp_autograd``, the autograd forward
         ``net(rgb as (N, 3, H, W) float32 / 255, scales=1)[0]``; computed by the
         graph-free ``DispNetInference``. ``batch_size`` is kept for compatibility (the
-        inference path runs its own chunks).
+        inference path runs its own chunks). With ``flip``: the mean of that and its value
+        on the mirrored frames, mirrored back.
         """
         rgb, single = self._frames(rgb)
         if self._fast is None:
             self._fast = self.net.inference()
         out = self._fast(rgb).astype(np.float32, copy=False)
+        if self.flip:
+            mirrored = self._fast(np.ascontiguousarray(rgb[:, :, ::-1]))
+            out = 0.5 * (out + mirrored[:, :, ::-1].astype(np.float32, copy=False))
         return out[0] if single else out
 
     def predict_disp_autograd(self, rgb, batch_size: int = 64) -> np.ndarray:

@@ -27,12 +27,16 @@ def shipped_depth_model(scenario: str = "basic") -> Path:
     return MODELS / f"depth_{scenario}.npz"
 
 
-def load_depth_estimator(path):
+def load_depth_estimator(path, flip: bool = False):
     from ..depth.evaluate import DepthEstimator
-    return DepthEstimator.load(path)
+    return DepthEstimator.load(path, flip=flip)
 
 
-def _estimator_for(depth: str, depth_model, scenario: str):
+FLIP_HELP = ("depth: average the DispNet's disparity with its disparity on the mirrored "
+             "frame (test-time flip; twice the inference cost; docs/depth.md section 7)")
+
+
+def _estimator_for(depth: str, depth_model, scenario: str, flip: bool = False):
     if depth != "pred":
         return None
     path = Path(depth_model) if depth_model else shipped_depth_model(scenario)
@@ -69,6 +73,7 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                    help="scenes in the training pool (each flight starts in one of them)")
     p.add_argument("--depth", default=d.depth, choices=["gt", "pred"])
     p.add_argument("--depth-model", default=None, help="DepthEstimator .npz (--depth pred)")
+    p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
     p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
     p.add_argument("--eps-start", type=float, default=d.eps_start)
     p.add_argument("--lr", type=float, default=d.agent.lr, help="Adam step size (paper: 3e-4)")
@@ -127,13 +132,14 @@ def run_train_agent(args) -> int:
             raise SystemExit(f"train-agent --teachers: {e}")
     out = Path(args.out) if args.out else RUNS / "agent" / (("smoke_" if args.smoke else "")
                                                            + run_name(cfg))
-    est = _estimator_for(cfg.depth, args.depth_model, cfg.scenario)
+    est = _estimator_for(cfg.depth, args.depth_model, cfg.scenario, args.flip_tta)
     t0 = time.time()
     tr = train(cfg, out, depth_estimator=est, progress=not args.quiet, resume=args.resume)
     extra = {"command": _command_line(), "seed": cfg.seed,
              "train_seconds": round(time.time() - t0, 1),
              "depth_model": str(args.depth_model or (shipped_depth_model(cfg.scenario)
-                                                     if cfg.depth == "pred" else ""))}
+                                                     if cfg.depth == "pred" else "")),
+             "depth_flip": bool(args.flip_tta and cfg.depth == "pred")}
     model = tr.save_model(out / "model.npz", extra)
     print(json.dumps({"model": str(model), "steps": tr.steps, "updates": tr.agent.updates,
                       "last": tr.curve[-1] if tr.curve else {}}))
@@ -211,6 +217,7 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=12345)
     p.add_argument("--depth", default="gt", choices=["gt", "pred"])
     p.add_argument("--depth-model", default=None)
+    p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
     p.add_argument("--chunk", type=int, default=500, help="flights stepped together")
     p.add_argument("--workers", type=int, default=1,
                    help="processes flying chunks in parallel, one per core (same result; "
@@ -225,7 +232,7 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
 
 def run_evaluate(args) -> int:
     from .evaluate import evaluate_policy
-    est = _estimator_for(args.depth, args.depth_model, args.scenario)
+    est = _estimator_for(args.depth, args.depth_model, args.scenario, args.flip_tta)
     for spec in args.policies:
         pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES
                           else None)
@@ -247,6 +254,7 @@ def add_arguments_fly(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth-model", default=None,
                    help="DepthEstimator .npz (default: the shipped depth_<scenario>.npz)")
     p.add_argument("--depth", default="pred", choices=["gt", "pred"])
+    p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
     p.add_argument("--scenario", default="basic")
     p.add_argument("--flights", type=int, default=32,
                    help="flights for the success rate (DispNet runs on every frame: keep it small)")
@@ -271,7 +279,7 @@ def run_fly(args) -> int:
         else:
             print(f"fly: no depth model at {depth_model}; flying on GT depth", file=sys.stderr)
             depth = "gt"
-    est = load_depth_estimator(depth_model) if depth == "pred" else None
+    est = load_depth_estimator(depth_model, args.flip_tta) if depth == "pred" else None
     out = fly(model, est, args.scenario, seed, args.flights, args.gif, args.steps)
     print(json.dumps(out))
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
