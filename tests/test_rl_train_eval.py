@@ -148,7 +148,7 @@ def test_cli_smoke(tmp_path):
                              "--depth", "pred", "--flip-tta", "--json",
                              str(tmp_path / "f.jsonl")])
         assert commands.run_evaluate(args) == 0
-        assert "--flip-tta" in json.loads((tmp_path / "f.jsonl").read_text())["command"]
+        assert json.loads((tmp_path / "f.jsonl").read_text())["depth_flip"] is True
     ens = commands.make_policy(f"{model}+{model}")          # an ensemble spec
     assert ens.name.endswith("-ens2") and len(ens.members) == 2
     for bad in (f"{model}+random", f"{model}+"):

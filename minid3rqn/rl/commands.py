@@ -243,6 +243,7 @@ def run_evaluate(args) -> int:
         if args.json:
             with open(args.json, "a") as f:
                 f.write(json.dumps({**res.to_dict(), "spec": spec,
+                                    "depth_flip": bool(args.flip_tta and args.depth == "pred"),
                                     "command": _command_line()}) + "\n")
     return 0
 
