@@ -1,6 +1,6 @@
 """Every example runs in smoke mode (``--smoke``), in a fresh process and a scratch folder.
 
-The five numbered examples of the learning path (docs/README.md) are expected; one
+The numbered examples of the learning path (docs/README.md) are expected; one
 that does not exist yet is skipped with a note, and any other examples/*.py is run too.
 """
 import os
@@ -17,7 +17,7 @@ pytestmark = pytest.mark.examples
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
 EXPECTED = ["01_autograd_tour.py", "02_world_and_camera.py", "03_train_depth.py",
-            "04_train_d3rqn.py", "05_evaluate.py"]
+            "04_train_d3rqn.py", "05_evaluate.py", "06_wall_ahead.py"]
 SMOKE_SECONDS = 30        # each smoke run should take less than this on a laptop
 TIMEOUT = 180             # generous hard limit: the test machine may be shared
 
