@@ -166,12 +166,14 @@ def ship_model(model_path, name: str, results: dict | None = None) -> Path:
 BASELINES = ("straight", "random", "reactive", "oracle")
 
 
-def make_policy(spec: str, seed: int = 0, window: int | None = None):
+def make_policy(spec: str, seed: int = 0, window: int | None = None, mirror: bool = False):
     """'straight' | 'random' | 'reactive' | 'oracle' | path to a Q-net .npz | several
     Q-net paths joined by '+' (an ensemble: greedy on their mean Q-values).
 
     ``window`` (recurrent Q-nets): act from a zero state over the last ``window`` frames
-    at every step, as in training, instead of carrying the state through the flight."""
+    at every step, as in training, instead of carrying the state through the flight.
+    ``mirror``: every Q-net also flies the mirrored view (``QNetPolicy.mirrored``), and
+    the policy is the ensemble of all of them (one net: a two-member ensemble)."""
     from ..world import ACTIONS
     from .policies import (EnsemblePolicy, OraclePolicy, QNetPolicy, RandomPolicy,
                            ReactivePolicy, StraightPolicy)
@@ -180,7 +182,17 @@ def make_policy(spec: str, seed: int = 0, window: int | None = None):
         if any(p in BASELINES or not p for p in parts):
             raise SystemExit(f"evaluate: an ensemble joins Q-net .npz files with '+'; got "
                              f"{spec!r}")
-        return EnsemblePolicy([make_policy(p, seed, window) for p in parts])
+        members = [make_policy(p, seed, window) for p in parts]
+        if mirror:
+            members += [m.mirrored() for m in members]
+        ens = EnsemblePolicy(members)
+        if mirror:
+            ens.name = f"{'+'.join(sorted({m.name for m in members[:len(parts)]}))}" \
+                       f"-ens{len(parts)}-mirror"
+        return ens
+    if mirror and spec not in BASELINES:
+        pol = make_policy(spec, seed, window)
+        return EnsemblePolicy([pol, pol.mirrored()], name=pol.name + "-mirror")
     if spec == "straight":
         return StraightPolicy()
     if spec == "random":
@@ -226,6 +238,10 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
                    help="recurrent Q-nets: act from a zero state over the last N frames at "
                         "every step (as trained) instead of carrying the state through "
                         "the flight")
+    p.add_argument("--mirror", action="store_true",
+                   help="Q-nets: each also flies the left-right mirrored view, and the "
+                        "policy is greedy on the mean Q-values of all (a free two-member "
+                        "ensemble per net; docs/d3rqn.md section 10)")
     p.add_argument("--json", default=None, help="append results to this JSON-lines file")
     p.add_argument("--quiet", action="store_true")
 
@@ -235,7 +251,7 @@ def run_evaluate(args) -> int:
     est = _estimator_for(args.depth, args.depth_model, args.scenario, args.flip_tta)
     for spec in args.policies:
         pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES
-                          else None)
+                          else None, mirror=args.mirror)
         res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
                               args.chunk, args.depth, est, progress=not args.quiet,
                               workers=args.workers)
@@ -244,6 +260,7 @@ def run_evaluate(args) -> int:
             with open(args.json, "a") as f:
                 f.write(json.dumps({**res.to_dict(), "spec": spec,
                                     "depth_flip": bool(args.flip_tta and args.depth == "pred"),
+                                    "mirror": bool(args.mirror and spec not in BASELINES),
                                     "command": _command_line()}) + "\n")
     return 0
 

@@ -127,16 +127,37 @@ class OraclePolicy(Policy):
         return np.asarray(self.oracle(obs["flights"]), dtype=np.int64)
 
 
+def mirror_permutation(actions) -> np.ndarray:
+    """For each action (speed, yaw rate), the index of its mirror image: the same speed,
+    the opposite yaw rate. A world seen in a left-right mirror is flown by mirrored
+    actions. ValueError if the action table is not symmetric."""
+    actions = np.asarray(actions, dtype=np.float64)
+    mirrored = actions * np.array([1.0, -1.0])
+    match = np.all(np.isclose(actions[None, :, :], mirrored[:, None, :]), axis=2)  # (i, j)
+    if not match.any(axis=1).all():
+        missing = actions[~match.any(axis=1)].tolist()
+        raise ValueError(f"mirror_permutation: the action table has no mirror image for "
+                         f"{missing}; it needs, for every (speed, yaw rate), (speed, -yaw rate)")
+    return np.argmax(match, axis=1)
+
+
 class QNetPolicy(Policy):
     """Greedy on a trained QNet; recurrent state carried through each flight.
 
     ``window=k`` (recurrent nets only) instead re-runs the LSTM from a zero state over
     the flight's last k frames at every step -- exactly what it saw in training (windows
     of 5 from a zero state) -- rather than carrying the state through the whole flight.
+
+    ``mirror=True``: the net flies the flights as seen in a left-right mirror. It reads
+    every depth frame mirrored, and its Q-value of action a is reported as that of a's
+    mirror image (``mirror_permutation``; the camera is symmetric, cx = (W - 1) / 2).
+    A mirrored world is as likely as the world itself, so the mirrored net is a second
+    opinion for free. Joined with the plain one in an ``EnsemblePolicy``, it is a
+    two-member ensemble of one net (``evaluate --mirror``; docs/d3rqn.md section 10).
     """
 
     def __init__(self, qnet: QNet, name: str | None = None, epsilon: float = 0.0, seed=None,
-                 window: int | None = None):
+                 window: int | None = None, mirror: bool = False):
         self.qnet = qnet
         self.name = name or "QNet"
         self.epsilon = epsilon
@@ -145,6 +166,21 @@ class QNetPolicy(Policy):
         self.window = window
         if window is not None and not qnet.recurrent:
             raise ValueError("QNetPolicy: window= needs a recurrent net")
+        self.mirror = bool(mirror)
+        self.mirror_of = None
+        if self.mirror:
+            from ..world import ACTIONS
+            if qnet.config.n_actions != len(ACTIONS):
+                raise ValueError(f"QNetPolicy: mirror=True needs the world's action table "
+                                 f"({len(ACTIONS)} actions); the net has "
+                                 f"{qnet.config.n_actions}")
+            self.mirror_of = mirror_permutation(ACTIONS)
+
+    def mirrored(self) -> "QNetPolicy":
+        """A greedy copy of this policy (the same net: shared weights, its own memory)
+        that flies the mirrored view."""
+        return QNetPolicy(self.qnet, self.name + "-mirrored", window=self.window,
+                          mirror=not self.mirror)
 
     @classmethod
     def load(cls, path, name: str | None = None) -> "QNetPolicy":
@@ -189,6 +225,8 @@ class QNetPolicy(Policy):
 
     def act(self, obs, started=None):
         frames = np.asarray(obs["frames"], dtype=np.float32)
+        if self.mirror:
+            frames = np.ascontiguousarray(frames[..., ::-1])
         started = self.fresh if started is None else (np.asarray(started, bool) | self.fresh)
         if started.any():
             self.stacker.reset(np.flatnonzero(started), frames[started])
@@ -217,8 +255,8 @@ class QNetPolicy(Policy):
         else:
             with no_grad():
                 q, self.state = self.qnet.step(self.stacker.obs, self.state)
-        self.last_q = q.data
-        actions = np.argmax(q.data, axis=1).astype(np.int64)
+        self.last_q = q.data[:, self.mirror_of] if self.mirror else q.data
+        actions = np.argmax(self.last_q, axis=1).astype(np.int64)
         if self.epsilon > 0:
             explore = self.rng.random(len(actions)) < self.epsilon
             actions = np.where(explore, self.rng.integers(q.shape[1], size=len(actions)), actions)
@@ -275,4 +313,4 @@ class EnsemblePolicy(Policy):
 
 
 __all__ = ["Policy", "StraightPolicy", "RandomPolicy", "ReactivePolicy", "OraclePolicy",
-           "QNetPolicy", "EnsemblePolicy"]
+           "QNetPolicy", "EnsemblePolicy", "mirror_permutation"]
