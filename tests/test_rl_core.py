@@ -6,7 +6,7 @@ from minid3rqn import autograd as ag
 from minid3rqn.nets.qnet import QNetConfig, VARIANTS, build_qnet
 from minid3rqn.rl.agent import Agent, AgentConfig, FrameStacker, double_q_targets
 from minid3rqn.rl.replay import EpisodeReplay
-from minid3rqn.rl.policies import EnsemblePolicy, QNetPolicy
+from minid3rqn.rl.policies import EnsemblePolicy, QNetPolicy, mirror_permutation
 
 pytestmark = pytest.mark.rl
 
@@ -194,6 +194,49 @@ def test_ensemble_acts_greedily_on_the_members_mean_q():
     with pytest.raises(ValueError, match="must share"):
         EnsemblePolicy([QNetPolicy(nets[0]),
                         QNetPolicy(build_qnet("d3rqn", rng=0, width=8, n_actions=3))])
+
+
+def test_mirror_permutation():
+    from minid3rqn.world import ACTIONS
+    perm = mirror_permutation(ACTIONS)
+    np.testing.assert_array_equal(ACTIONS[perm], ACTIONS * [1, -1])    # yaw rate negated
+    np.testing.assert_array_equal(perm[perm], np.arange(len(ACTIONS)))  # an involution
+    with pytest.raises(ValueError, match=r"no mirror image for \[\[2.0, 0.3\]\]"):
+        mirror_permutation([[2.0, 0.0], [2.0, 0.3]])
+
+
+@pytest.mark.parametrize("window", [None, 3])
+def test_mirrored_policy_flies_the_mirrored_view(window):
+    """mirror=True on frames x is the plain policy on x mirrored, with each action's
+    Q-value reported under its mirror image; through a flight, a restart, and with the
+    window. Plain + mirrored as an ensemble is then exactly mirror-symmetric."""
+    from minid3rqn.world import ACTIONS
+    perm = mirror_permutation(ACTIONS)
+    net = build_qnet("d3rqn", rng=0, width=8)
+    rng = np.random.default_rng(3)
+    frames = rng.random((5, 2, H, W)).astype(np.float32)        # 5 steps, 2 flights
+    flipped = np.ascontiguousarray(frames[..., ::-1])
+    plain = QNetPolicy(net, window=window)
+    mirrored = plain.mirrored()
+    both = EnsemblePolicy([QNetPolicy(net, window=window), QNetPolicy(net, window=window,
+                                                                       mirror=True)])
+    both_flipped = EnsemblePolicy([QNetPolicy(net, window=window),
+                                   QNetPolicy(net, window=window, mirror=True)])
+    for p in (plain, mirrored, both, both_flipped):
+        p.reset(2)
+    for t in range(5):
+        started = np.array([False, t == 3])
+        plain.act({"frames": flipped[t]}, started=started)
+        a = mirrored.act({"frames": frames[t]}, started=started)
+        np.testing.assert_allclose(mirrored.last_q, plain.last_q[:, perm], rtol=1e-6)
+        np.testing.assert_array_equal(a, np.argmax(plain.last_q[:, perm], axis=1))
+        both.act({"frames": frames[t]}, started=started)
+        both_flipped.act({"frames": flipped[t]}, started=started)
+        np.testing.assert_allclose(both_flipped.last_q, both.last_q[:, perm], rtol=1e-5,
+                                   atol=1e-7)
+    assert mirrored.mirror and not mirrored.mirrored().mirror
+    with pytest.raises(ValueError, match="action table"):
+        QNetPolicy(build_qnet("d3rqn", rng=0, width=8, n_actions=3), mirror=True)
 
 
 def test_frame_stacker():

@@ -151,6 +151,16 @@ def test_cli_smoke(tmp_path):
         assert json.loads((tmp_path / "f.jsonl").read_text())["depth_flip"] is True
     ens = commands.make_policy(f"{model}+{model}")          # an ensemble spec
     assert ens.name.endswith("-ens2") and len(ens.members) == 2
+    one = commands.make_policy(str(model), mirror=True)     # a net and its mirror image
+    assert one.name.endswith("-mirror") and [m.mirror for m in one.members] == [False, True]
+    two = commands.make_policy(f"{model}+{model}", mirror=True)
+    assert two.name.endswith("-ens2-mirror") and [m.mirror for m in two.members] == \
+        [False, False, True, True]
+    assert commands.make_policy("reactive", mirror=True).name == "Reactive"
+    args = p.parse_args([str(model), "--mirror", "--flights", "2", "--steps", "3", "--quiet",
+                         "--json", str(tmp_path / "m.jsonl")])
+    assert commands.run_evaluate(args) == 0
+    assert json.loads((tmp_path / "m.jsonl").read_text())["mirror"] is True
     for bad in (f"{model}+random", f"{model}+"):
         with pytest.raises(SystemExit, match="ensemble joins Q-net"):
             commands.make_policy(bad)
