@@ -202,6 +202,9 @@ def test_fly_main_job_smoke(tmp_path, capsys):
     args = p.parse_args(["--flights", "2", "--steps", "2", "--seed", "1", "--depth", "gt",
                          "--gif", str(gif), "--model", f"{SHIPPED}+{SHIPPED}"])
     assert commands.run_fly(args) == 0
+    args = p.parse_args(["--flights", "2", "--steps", "2", "--seed", "1", "--depth", "gt",
+                         "--gif", str(gif), "--mirror"])          # the net and its mirror
+    assert commands.run_fly(args) == 0
     args = p.parse_args(["--model", f"{SHIPPED}+{tmp_path / 'nope.npz'}"])
     with pytest.raises(SystemExit, match="nope.npz"):
         commands.run_fly(args)

@@ -273,6 +273,8 @@ def add_arguments_fly(p: argparse.ArgumentParser) -> None:
                    help="DepthEstimator .npz (default: the shipped depth_<scenario>.npz)")
     p.add_argument("--depth", default="pred", choices=["gt", "pred"])
     p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
+    p.add_argument("--mirror", action="store_true",
+                   help="each Q-net also flies the mirrored view (a free two-member ensemble)")
     p.add_argument("--scenario", default="basic")
     p.add_argument("--flights", type=int, default=32,
                    help="flights for the success rate (DispNet runs on every frame: keep it small)")
@@ -298,7 +300,8 @@ def run_fly(args) -> int:
             print(f"fly: no depth model at {depth_model}; flying on GT depth", file=sys.stderr)
             depth = "gt"
     est = load_depth_estimator(depth_model, args.flip_tta) if depth == "pred" else None
-    out = fly(model, est, args.scenario, seed, args.flights, args.gif, args.steps)
+    out = fly(model, est, args.scenario, seed, args.flights, args.gif, args.steps,
+              mirror=args.mirror)
     print(json.dumps(out))
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
           f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}) on {depth} depth; GIF: "

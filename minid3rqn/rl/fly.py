@@ -19,11 +19,14 @@ ACTION_NAMES = ["0", "+.25", "-.25", "+.5", "-.5"]
 
 
 def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flights: int = 200,
-        gif="fly.gif", max_steps: int = 50) -> dict:
+        gif="fly.gif", max_steps: int = 50, mirror: bool = False) -> dict:
     """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate.
-    ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q)."""
+    ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q);
+    ``mirror``: each net also flies the mirrored view (``QNetPolicy.mirrored``)."""
     t0 = time.time()
     members = [QNetPolicy.load(part, "D3RQN") for part in str(model).split("+")]
+    if mirror:
+        members += [m.mirrored() for m in members]
     policy = members[0] if len(members) == 1 else EnsemblePolicy(members)
     depth = "pred" if depth_estimator is not None else "gt"
     flights = Flights(scenario, n_flights, seed=seed, depth=depth,
