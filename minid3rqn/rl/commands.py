@@ -183,13 +183,11 @@ def make_policy(spec: str, seed: int = 0, window: int | None = None, mirror: boo
             raise SystemExit(f"evaluate: an ensemble joins Q-net .npz files with '+'; got "
                              f"{spec!r}")
         members = [make_policy(p, seed, window) for p in parts]
-        if mirror:
-            members += [m.mirrored() for m in members]
-        ens = EnsemblePolicy(members)
-        if mirror:
-            ens.name = f"{'+'.join(sorted({m.name for m in members[:len(parts)]}))}" \
-                       f"-ens{len(parts)}-mirror"
-        return ens
+        if not mirror:
+            return EnsemblePolicy(members)
+        names = "+".join(sorted({m.name for m in members}))
+        return EnsemblePolicy(members + [m.mirrored() for m in members],
+                              name=f"{names}-ens{len(parts)}-mirror")
     if mirror and spec not in BASELINES:
         pol = make_policy(spec, seed, window)
         return EnsemblePolicy([pol, pol.mirrored()], name=pol.name + "-mirror")
