@@ -149,6 +149,10 @@ def test_cli_smoke(tmp_path):
                              str(tmp_path / "f.jsonl")])
         assert commands.run_evaluate(args) == 0
         assert json.loads((tmp_path / "f.jsonl").read_text())["depth_flip"] is True
+        # the flag reaches the estimator that flies (it once did not: the JSON said
+        # depth_flip while the frames were not flipped)
+        assert commands._estimator_for("pred", str(SHIPPED_DEPTH), "basic", True).flip
+        assert not commands._estimator_for("pred", str(SHIPPED_DEPTH), "basic", False).flip
     ens = commands.make_policy(f"{model}+{model}")          # an ensemble spec
     assert ens.name.endswith("-ens2") and len(ens.members) == 2
     one = commands.make_policy(str(model), mirror=True)     # a net and its mirror image

@@ -44,7 +44,7 @@ def _estimator_for(depth: str, depth_model, scenario: str, flip: bool = False):
         raise SystemExit(f"depth model {str(path)!r} not found; train one with "
                          f"`python -m minid3rqn train-depth --scenario {scenario} --ship` "
                          f"or pass --depth gt")
-    return load_depth_estimator(path)
+    return load_depth_estimator(path, flip)
 
 
 # -- train-agent --------------------------------------------------------------------------
@@ -257,7 +257,7 @@ def run_evaluate(args) -> int:
         if args.json:
             with open(args.json, "a") as f:
                 f.write(json.dumps({**res.to_dict(), "spec": spec,
-                                    "depth_flip": bool(args.flip_tta and args.depth == "pred"),
+                                    "depth_flip": bool(est is not None and est.flip),
                                     "mirror": bool(args.mirror and spec not in BASELINES),
                                     "command": _command_line()}) + "\n")
     return 0
