@@ -68,6 +68,25 @@ def add_arguments_collect(p: argparse.ArgumentParser) -> None:
                    help="largest crab angle (camera heading off the direction of flight), "
                         "drawn per flight; moves the focus of expansion off the image "
                         "centre (0: the camera looks where the drone flies)")
+    add_argument_horizon_row(p)
+
+
+HORIZON_HELP = ("image row of the horizon (default: the middle row, 15.5 of 32); a smaller "
+                "value shows more floor: 4 sees the floor from 1.93 m ahead instead of "
+                "3.35 m (docs/depth.md section 7)")
+
+
+def add_argument_horizon_row(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--horizon-row", type=float, default=None, help=HORIZON_HELP)
+
+
+def camera_from_args(args, command: str):
+    """The world's camera with the command's ``--horizon-row``, or a clear exit."""
+    from ..world.camera import Camera
+    try:
+        return Camera(horizon_row=getattr(args, "horizon_row", None))
+    except ValueError as e:
+        raise SystemExit(f"{command} --horizon-row: {e}")
 
 
 def run_collect(args) -> int:
@@ -75,6 +94,7 @@ def run_collect(args) -> int:
     out = Path(args.out or RUNS / args.scenario / "train.npz")
     t0 = time.time()
     data = collect(args.scenario, args.frames, args.frames_per_flight, args.seed,
+                   camera=camera_from_args(args, "collect"),
                    late=args.late_turns, frame_dt=args.frame_dt, crab_deg=args.crab_deg)
     save_sequence(out, data, {"scenario": args.scenario, "seed": args.seed,
                               "late_turns": args.late_turns,
@@ -85,19 +105,29 @@ def run_collect(args) -> int:
 
 
 def _ensure_data(path: Path, scenario: str, frames: int, seed: int, fpf: int = 50,
-                 late: float = 0.0, frame_dt: float = 0.4, crab_deg: float = 0.0):
+                 late: float = 0.0, frame_dt: float = 0.4, crab_deg: float = 0.0,
+                 camera=None):
+    from ..world.camera import Camera
     from .data import FRAME_DT, collect, load_sequence, save_sequence
+    camera = camera or Camera()
     if not path.is_file():
-        data = collect(scenario, frames, fpf, seed, late=late, frame_dt=frame_dt,
-                       crab_deg=crab_deg)
+        data = collect(scenario, frames, fpf, seed, camera=camera, late=late,
+                       frame_dt=frame_dt, crab_deg=crab_deg)
         extra = (f" --late-turns {late}" if late else "") + \
             (f" --frame-dt {frame_dt}" if frame_dt != FRAME_DT else "") + \
-            (f" --crab-deg {crab_deg}" if crab_deg else "")
+            (f" --crab-deg {crab_deg}" if crab_deg else "") + \
+            (f" --horizon-row {camera.horizon_row:g}" if camera.horizon_row is not None
+             else "")
         save_sequence(path, data, {"scenario": scenario, "seed": seed, "late_turns": late,
                                    "command": f"python -m minid3rqn collect --scenario "
                                               f"{scenario} --frames {frames} --seed {seed} "
                                               f"--out {path}{extra}"})
-    return load_sequence(path)
+    seq = load_sequence(path)
+    if abs(float(seq.K[1, 2]) - camera.cy) > 1e-6:
+        raise SystemExit(f"{path}: its frames were filmed with the horizon at row "
+                         f"{float(seq.K[1, 2]):g}, but this command's camera has it at row "
+                         f"{camera.cy:g} (--horizon-row); give another --dir or --data")
+    return seq
 
 
 # -- train-depth ---------------------------------------------------------------------------
@@ -118,6 +148,7 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--crab-deg", type=float, default=0.0,
                    help="training frames: largest crab angle (collect --crab-deg); held-out "
                         "frames always look where the drone flies")
+    add_argument_horizon_row(p)
     p.add_argument("--iterations", type=int, default=d.iterations)
     p.add_argument("--batch-size", type=int, default=d.batch_size)
     p.add_argument("--lr", type=float, default=d.lr)
@@ -258,10 +289,12 @@ def run_train_depth(args) -> int:
     paths["dir"].mkdir(parents=True, exist_ok=True)
     cfg = config_from_args(args)
     t0 = time.time()
+    camera = camera_from_args(args, "train-depth")
     train = _ensure_data(paths["train"], args.scenario, args.frames, args.seed,
-                         late=args.late_turns, frame_dt=args.frame_dt, crab_deg=args.crab_deg)
+                         late=args.late_turns, frame_dt=args.frame_dt, crab_deg=args.crab_deg,
+                         camera=camera)
     test = _ensure_data(paths["test"], args.scenario, args.test_frames,
-                        args.seed + TEST_SEED_OFFSET)
+                        args.seed + TEST_SEED_OFFSET, camera=camera)
     t_data = time.time() - t0
     if abs(train.step - cfg.loss.step) > 1e-6:
         # Frames filmed closer together (collect --frame-dt): the known-speed term and
@@ -281,6 +314,7 @@ def run_train_depth(args) -> int:
     estimator = DepthEstimator(trainer.disp, trainer.speed_scale())
     results = evaluate(estimator, test, posenet=trainer.pose)
     meta = {"command": _command_line(args, "train-depth"), "seed": args.seed, "scenario": args.scenario,
+            "horizon_row": camera.cy,
             "config": cfg.to_dict(), "results": results,
             "train_frames": len(train), "test_frames": len(test),
             "train_seconds": round(t_train, 1), "data_seconds": round(t_data, 1),
@@ -326,13 +360,18 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--posenet", default=None,
                    help="a training checkpoint (runs/depth/<run>/checkpoint.npz): also report "
                         "its PoseNet's pose errors on these frames")
+    add_argument_horizon_row(p)
 
 
 def run_eval_depth(args) -> int:
+    from ..world.camera import Camera
     from .evaluate import DepthEstimator, comparison_picture, evaluate
     estimator = DepthEstimator.load(args.model, flip=args.flip_tta)
     path = Path(args.test_data or RUNS / args.scenario / "test.npz")
-    test = _ensure_data(path, args.scenario, args.test_frames, args.seed + TEST_SEED_OFFSET)
+    test = _ensure_data(path, args.scenario, args.test_frames, args.seed + TEST_SEED_OFFSET,
+                        camera=camera_from_args(args, "eval-depth")
+                        if args.horizon_row is not None else
+                        Camera(horizon_row=estimator.horizon_row))
     posenet = None
     if args.posenet:
         from .train import load_posenet

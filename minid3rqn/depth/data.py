@@ -188,7 +188,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         bar.close()
     return {"rgb": np.concatenate(rgb), "depth": np.concatenate(depth),
             "pose": np.concatenate(pose), "flight": np.concatenate(flight),
-            "K": camera.K, "camera": (camera.height, camera.width, camera.hfov_deg),
+            "K": camera.K, "camera": (camera.height, camera.width, camera.hfov_deg, camera.cy),
             "dt": frame_dt, "crab_deg": crab_deg}
 
 

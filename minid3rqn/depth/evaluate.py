@@ -69,6 +69,12 @@ class DepthEstimator:
         self.height = self.meta.get("height", 32)
         self.width = self.meta.get("width", 104)
 
+    @property
+    def horizon_row(self) -> float:
+        """The horizon row of the frames it was trained on (train-depth --horizon-row;
+        files written before that option existed: the middle row)."""
+        return float(self.meta.get("horizon_row", (self.height - 1) / 2.0))
+
     # -- files -----------------------------------------------------------------------
     def save(self, path, extra: dict | None = None) -> Path:
         meta = {"dispnet": self.net.config(), "scale": self.scale,

@@ -120,21 +120,23 @@ def matrix_to_pose_vec(T) -> np.ndarray:
 def check_intrinsics(K, height: int, width: int, name: str = "K") -> np.ndarray:
     """Validate K (3, 3) against an image of (height, width); return it as float64.
 
-    The world's cameras put the principal point at the image centre, cx = (W-1)/2 and
-    cy = (H-1)/2. K made for another image size (a common mistake when images are
-    resized) breaks that, and the warp would silently read the wrong pixels.
+    The world's cameras put the principal point at the middle column, cx = (W-1)/2, and
+    the horizon row cy inside the image (the middle row (H-1)/2 unless the camera's
+    ``horizon_row`` moves it). K made for another image size (a common mistake when
+    images are resized) breaks that, and the warp would silently read the wrong pixels.
     """
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3):
         raise ValueError(f"{name} must have shape (3, 3); got {K.shape}")
     if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise ValueError(f"{name} must be finite with positive focal lengths; got {K.tolist()}")
-    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
-    if abs(K[0, 2] - cx) > 0.5 or abs(K[1, 2] - cy) > 0.5:
+    cx = (width - 1) / 2.0
+    if abs(K[0, 2] - cx) > 0.5 or not (-0.5 <= K[1, 2] <= height - 0.5):
         raise ValueError(
             f"{name} does not match the image size {height}x{width}: its principal point is "
-            f"(cx, cy) = ({K[0, 2]:g}, {K[1, 2]:g}) but an image of that size has its centre "
-            f"at ({cx:g}, {cy:g}). Scale K with the image (see Camera.scaled / scale_intrinsics).")
+            f"(cx, cy) = ({K[0, 2]:g}, {K[1, 2]:g}) but an image of that size has its middle "
+            f"column at cx = {cx:g} and its rows in [0, {height - 1}]. Scale K with the image "
+            f"(see Camera.scaled / scale_intrinsics).")
     return K
 
 

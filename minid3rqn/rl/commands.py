@@ -32,6 +32,47 @@ def load_depth_estimator(path, flip: bool = False):
     return DepthEstimator.load(path, flip=flip)
 
 
+HORIZON_HELP = ("the camera's horizon row (Camera.horizon_row; default: the depth model's, "
+                "else the middle row): 4 shows the floor from 1.93 m ahead instead of "
+                "3.35 m (docs/depth.md section 7)")
+
+
+def model_horizon(meta: dict | None) -> float | None:
+    """The horizon row a Q-net was trained with (None: the default camera)."""
+    return (((meta or {}).get("train_config") or {}).get("flights") or {}).get("horizon_row")
+
+
+def horizon_for(command: str, given, est, policies=()) -> float | None:
+    """The horizon row a command flies with: ``--horizon-row`` if given, else the depth
+    model's (a DispNet reads frames like the ones it was trained on), else the Q-nets'.
+    Every Q-net and the depth model must agree with it: a net trained with one camera
+    flown with another sees the floor where it never saw it, and says nothing."""
+    from ..world import Camera
+    default = Camera().cy
+    nets = [m for p in policies for m in getattr(p, "members", [p]) if hasattr(m, "qnet")]
+    row = given
+    if row is None and est is not None:
+        row = est.horizon_row
+    if row is None:
+        rows = {model_horizon(getattr(m, "meta", None)) for m in nets}
+        row = rows.pop() if len(rows) == 1 else None
+    try:
+        cy = Camera(horizon_row=row).cy
+    except ValueError as e:
+        raise SystemExit(f"{command} --horizon-row: {e}")
+    if est is not None and abs(est.horizon_row - cy) > 1e-6:
+        raise SystemExit(f"{command}: the depth model was trained with the horizon at row "
+                         f"{est.horizon_row:g}, but --horizon-row is {cy:g}")
+    for m in nets:
+        trained = model_horizon(getattr(m, "meta", None))
+        trained = default if trained is None else trained
+        if abs(trained - cy) > 1e-6:
+            raise SystemExit(f"{command}: Q-net {m.name!r} was trained with the horizon at row "
+                             f"{trained:g}, but these flights have it at row {cy:g} "
+                             f"(--horizon-row, or the depth model's)")
+    return None if cy == default else cy
+
+
 FLIP_HELP = ("depth: average the DispNet's disparity with its disparity on the mirrored "
              "frame (test-time flip; twice the inference cost; docs/depth.md section 7)")
 
@@ -74,6 +115,7 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth", default=d.depth, choices=["gt", "pred"])
     p.add_argument("--depth-model", default=None, help="DepthEstimator .npz (--depth pred)")
     p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
+    p.add_argument("--horizon-row", type=float, default=None, help=HORIZON_HELP)
     p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
     p.add_argument("--eps-start", type=float, default=d.eps_start)
     p.add_argument("--lr", type=float, default=d.agent.lr, help="Adam step size (paper: 3e-4)")
@@ -133,13 +175,17 @@ def run_train_agent(args) -> int:
     out = Path(args.out) if args.out else RUNS / "agent" / (("smoke_" if args.smoke else "")
                                                            + run_name(cfg))
     est = _estimator_for(cfg.depth, args.depth_model, cfg.scenario, args.flip_tta)
+    from .policies import QNetPolicy
+    known = [p for p in [cfg.init_model, *cfg.teachers.split("+")] if p]
+    known = [QNetPolicy.load(p) for p in known if Path(p).is_file()]
+    cfg.flights.horizon_row = horizon_for("train-agent", args.horizon_row, est, known)
     t0 = time.time()
     tr = train(cfg, out, depth_estimator=est, progress=not args.quiet, resume=args.resume)
     extra = {"command": _command_line(), "seed": cfg.seed,
              "train_seconds": round(time.time() - t0, 1),
              "depth_model": str(args.depth_model or (shipped_depth_model(cfg.scenario)
                                                      if cfg.depth == "pred" else "")),
-             "depth_flip": bool(args.flip_tta and cfg.depth == "pred")}
+             "depth_flip": bool(est is not None and est.flip)}
     model = tr.save_model(out / "model.npz", extra)
     print(json.dumps({"model": str(model), "steps": tr.steps, "updates": tr.agent.updates,
                       "last": tr.curve[-1] if tr.curve else {}}))
@@ -240,25 +286,30 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
                    help="Q-nets: each also flies the left-right mirrored view, and the "
                         "policy is greedy on the mean Q-values of all (a free two-member "
                         "ensemble per net; docs/d3rqn.md section 10)")
+    p.add_argument("--horizon-row", type=float, default=None, help=HORIZON_HELP)
     p.add_argument("--json", default=None, help="append results to this JSON-lines file")
     p.add_argument("--quiet", action="store_true")
 
 
 def run_evaluate(args) -> int:
     from .evaluate import evaluate_policy
+    from .flights import FlightsConfig
     est = _estimator_for(args.depth, args.depth_model, args.scenario, args.flip_tta)
     for spec in args.policies:
         pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES
                           else None, mirror=args.mirror)
+        row = horizon_for("evaluate", args.horizon_row, est, [pol])
         res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
                               args.chunk, args.depth, est, progress=not args.quiet,
-                              workers=args.workers)
+                              workers=args.workers,
+                              flights_config=FlightsConfig(horizon_row=row))
         print(res.line(), flush=True)
         if args.json:
             with open(args.json, "a") as f:
                 f.write(json.dumps({**res.to_dict(), "spec": spec,
                                     "depth_flip": bool(est is not None and est.flip),
                                     "mirror": bool(args.mirror and spec not in BASELINES),
+                                    "horizon_row": row,
                                     "command": _command_line()}) + "\n")
     return 0
 
@@ -273,6 +324,7 @@ def add_arguments_fly(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
     p.add_argument("--mirror", action="store_true",
                    help="each Q-net also flies the mirrored view (a free two-member ensemble)")
+    p.add_argument("--horizon-row", type=float, default=None, help=HORIZON_HELP)
     p.add_argument("--scenario", default="basic")
     p.add_argument("--flights", type=int, default=32,
                    help="flights for the success rate (DispNet runs on every frame: keep it small)")
@@ -298,8 +350,11 @@ def run_fly(args) -> int:
             print(f"fly: no depth model at {depth_model}; flying on GT depth", file=sys.stderr)
             depth = "gt"
     est = load_depth_estimator(depth_model, args.flip_tta) if depth == "pred" else None
+    from .policies import QNetPolicy
+    row = horizon_for("fly", args.horizon_row, est,
+                      [QNetPolicy.load(part) for part in model.split("+")])
     out = fly(model, est, args.scenario, seed, args.flights, args.gif, args.steps,
-              mirror=args.mirror)
+              mirror=args.mirror, horizon_row=row)
     print(json.dumps(out))
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
           f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}) on {depth} depth; GIF: "

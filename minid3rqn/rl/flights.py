@@ -44,6 +44,8 @@ class FlightsConfig:
     max_depth: float = 10.0      # ours: depth clip (m) for the Q-net input
     depth_scale: float = 1.0     # extra factor on predicted depth (1: trust the estimator)
     test_worlds: bool = False    # draw worlds from the evaluation seed range
+    horizon_row: float | None = None  # ours: the camera's horizon row (None: the middle row;
+                                      # Camera.horizon_row, docs/depth.md section 7)
 
 
 @dataclass
@@ -85,7 +87,17 @@ class Flights:
                              f">= 1; got {n_worlds!r}")
         self.depth_mode, self.estimator = depth, depth_estimator
         self.autoreset = autoreset
-        self.camera = camera or Camera()
+        if camera is None:
+            camera = Camera(horizon_row=self.cfg.horizon_row)
+        elif self.cfg.horizon_row is not None and camera.cy != self.cfg.horizon_row:
+            raise ValueError(f"Flights: camera has its horizon at row {camera.cy:g} but "
+                             f"config.horizon_row is {self.cfg.horizon_row:g}; give one")
+        self.camera = camera
+        seen = getattr(depth_estimator, "horizon_row", None) if depth == "pred" else None
+        if seen is not None and abs(seen - camera.cy) > 1e-6:
+            raise ValueError(f"Flights: the depth estimator was trained on frames with the "
+                             f"horizon at row {seen:g}, but these flights' camera has it at "
+                             f"row {camera.cy:g} (FlightsConfig.horizon_row / --horizon-row)")
         self.actions = np.asarray(ACTIONS if actions is None else actions, dtype=np.float64)
         self.n_actions = len(self.actions)
         self.frame_shape = (self.camera.height, self.camera.width)

@@ -19,10 +19,12 @@ ACTION_NAMES = ["0", "+.25", "-.25", "+.5", "-.5"]
 
 
 def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flights: int = 200,
-        gif="fly.gif", max_steps: int = 50, mirror: bool = False) -> dict:
+        gif="fly.gif", max_steps: int = 50, mirror: bool = False,
+        horizon_row: float | None = None) -> dict:
     """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate.
     ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q);
-    ``mirror``: each net also flies the mirrored view (``QNetPolicy.mirrored``)."""
+    ``mirror``: each net also flies the mirrored view (``QNetPolicy.mirrored``);
+    ``horizon_row``: the camera's (``Camera.horizon_row``; None: the middle row)."""
     t0 = time.time()
     members = [QNetPolicy.load(part, "D3RQN") for part in str(model).split("+")]
     if mirror:
@@ -31,7 +33,8 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
     depth = "pred" if depth_estimator is not None else "gt"
     flights = Flights(scenario, n_flights, seed=seed, depth=depth,
                       depth_estimator=depth_estimator, autoreset=False,
-                      config=FlightsConfig(max_steps=max_steps, test_worlds=True))
+                      config=FlightsConfig(max_steps=max_steps, test_worlds=True,
+                                           horizon_row=horizon_row))
     frames_out, path, crashed = [], [], [False]
     max_depth = flights.cfg.max_depth
 

@@ -179,8 +179,10 @@ class QNetPolicy(Policy):
     def mirrored(self) -> "QNetPolicy":
         """A greedy copy of this policy (the same net: shared weights, its own memory)
         that flies the mirrored view."""
-        return QNetPolicy(self.qnet, self.name + "-mirrored", window=self.window,
+        twin = QNetPolicy(self.qnet, self.name + "-mirrored", window=self.window,
                           mirror=not self.mirror)
+        twin.meta = getattr(self, "meta", None)
+        return twin
 
     @classmethod
     def load(cls, path, name: str | None = None) -> "QNetPolicy":

@@ -7,7 +7,13 @@ optical axis). A point P = (X, Y, Z) in the camera frame lands on pixel
 
         | fx  0  cx |
     K = |  0 fy  cy |,         fx = fy = (W / 2) / tan(hfov / 2),
-        |  0  0   1 |          cx = (W - 1) / 2,  cy = (H - 1) / 2.
+        |  0  0   1 |          cx = (W - 1) / 2,  cy = (H - 1) / 2 (by default).
+
+The optical axis is horizontal (the drone flies level), so row cy is the horizon. By
+default it is the middle row. ``horizon_row`` moves it up: the camera then sees more of
+the floor below the horizon and less above it, as if the lower part of a taller image
+were kept (a shifted lens, as in architectural cameras). Vertical edges stay vertical,
+so every column is still one horizontal ray (the renderer relies on that).
 
 Pixel centres sit at integer coordinates: pixel (u, v) (column u, row v) covers
 [u - 1/2, u + 1/2] x [v - 1/2, v + 1/2], so the image spans [-1/2, W - 1/2] horizontally
@@ -31,18 +37,24 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Camera:
-    """A forward-looking pinhole camera with square pixels and a centred principal point.
+    """A forward-looking pinhole camera with square pixels, its principal point centred
+    horizontally.
 
     Args:
         height: image rows H (default 32: the paper's 128 scaled by 1/4).
         width: image columns W (default 104: the paper's 416 scaled by 1/4).
         hfov_deg: horizontal field of view in degrees, in (0, 180). Default 90: at
             32x104 this gives fx = fy = 52 px and a vertical field of view of 34.2 deg.
+        horizon_row: the image row of the horizon, cy, in [0, H - 1]; None (default) puts
+            it in the middle, (H - 1) / 2. Flying 1 m high with the default camera, the
+            lowest row meets the floor 3.35 m ahead: a wall nearer than that hides its
+            foot (docs/depth.md section 7). ``horizon_row=4`` brings that to 1.93 m.
     """
 
     height: int = 32
     width: int = 104
     hfov_deg: float = 90.0
+    horizon_row: float | None = None
 
     def __post_init__(self):
         for name in ("height", "width"):
@@ -58,6 +70,19 @@ class Camera:
         if not (0.0 < float(fov) < 180.0):
             raise ValueError(f"Camera: hfov_deg must lie in (0, 180) degrees; got {fov}")
         object.__setattr__(self, "hfov_deg", float(fov))
+        row = self.horizon_row
+        if row is not None:
+            if isinstance(row, bool) or not isinstance(row, (int, float, np.integer,
+                                                              np.floating)):
+                raise TypeError(f"Camera: horizon_row must be a number or None; got "
+                                f"{type(row).__name__}")
+            if not (0.0 <= float(row) <= self.height - 1):
+                raise ValueError(f"Camera: horizon_row must lie in [0, H - 1] = [0, "
+                                 f"{self.height - 1}] (a row of the image); got {row}")
+            row = float(row)
+            if row == (self.height - 1) / 2.0:
+                row = None                       # the default camera, one way of writing it
+            object.__setattr__(self, "horizon_row", row)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -79,7 +104,8 @@ class Camera:
 
     @property
     def cy(self) -> float:
-        return (self.height - 1) / 2.0
+        """The horizon row: ``horizon_row``, or the middle row (H - 1) / 2."""
+        return (self.height - 1) / 2.0 if self.horizon_row is None else self.horizon_row
 
     @property
     def vfov_deg(self) -> float:
@@ -121,7 +147,14 @@ class Camera:
         """The same field of view at ``factor`` times the resolution (64x208 for 2)."""
         if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
             raise ValueError(f"Camera.scaled: factor must be an int >= 1; got {factor!r}")
-        return Camera(self.height * int(factor), self.width * int(factor), self.hfov_deg)
+        f = int(factor)
+        row = None if self.horizon_row is None else (self.horizon_row + 0.5) * f - 0.5
+        return Camera(self.height * f, self.width * f, self.hfov_deg, row)
+
+    def floor_reach(self, altitude: float = 1.0) -> float:
+        """How far ahead (m) the lowest image row meets the floor, flying ``altitude`` m
+        high: altitude / y_n of the last row. A wall nearer than this hides its foot."""
+        return float(altitude) / float((self.height - 1 - self.cy) / self.fy)
 
 
 __all__ = ["Camera"]
