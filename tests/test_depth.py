@@ -51,11 +51,23 @@ def test_pose_vec_round_trip_and_rigid():
     assert np.allclose(matrix_to_pose_vec(T), vec, atol=1e-12)
 
 
+@pytest.fixture(scope="module")
+def flight_raised():
+    """The same, filmed by a camera with its horizon at row 4 (Camera.horizon_row)."""
+    return collect("basic", n_frames=3, frames_per_flight=3, seed=3, progress=False,
+                   camera=Camera(horizon_row=4))
+
+
 @pytest.mark.parametrize("padding", ["zeros", "border"])
-def test_warp_with_gt_reconstructs_target_and_matches_world(flight, padding):
+@pytest.mark.parametrize("which", ["middle", "raised-horizon"])
+def test_warp_with_gt_reconstructs_target_and_matches_world(flight, flight_raised, which,
+                                                            padding):
     """GT depth of the middle frame + GT relative pose: the autograd warp of each
-    neighbour reproduces the middle frame, and equals the world's NumPy warp."""
+    neighbour reproduces the middle frame, and equals the world's NumPy warp; with the
+    horizon in the middle row and raised (an off-centre principal point)."""
+    flight = flight if which == "middle" else flight_raised
     rgb, depth, pose, K = flight["rgb"], flight["depth"], flight["pose"], flight["K"]
+    assert K[1, 2] == (15.5 if which == "middle" else 4.0)
     tgt = rgb[1].astype(np.float64) / 255
     for s in (0, 2):
         T = relative_transform(pose[1], pose[s])
@@ -81,6 +93,10 @@ def test_warp_with_gt_reconstructs_target_and_matches_world(flight, padding):
 def test_mismatched_intrinsics_raise():
     with pytest.raises(ValueError, match="does not match the image size"):
         check_intrinsics(_k(32, 104), 16, 52)
+    raised = Camera(horizon_row=4)                 # a horizon off the middle row is fine,
+    np.testing.assert_array_equal(check_intrinsics(raised.K, 32, 104), raised.K)
+    with pytest.raises(ValueError, match="does not match the image size"):
+        check_intrinsics(raised.K, 4, 104)         # a horizon outside the image is not
     with pytest.raises(ValueError, match="does not match the image size"):
         inverse_warp(np.zeros((1, 3, 8, 12)), np.ones((1, 8, 12)), np.eye(4)[None],
                      _k(16, 24))

@@ -50,6 +50,31 @@ def test_collect_train_eval_smoke(tmp_path, capsys):
               str(run / "test.npz"), "--posenet", str(run / "model.npz")])
 
 
+def test_a_raised_horizon_is_kept_with_the_data_and_the_model(tmp_path, capsys):
+    """train-depth --horizon-row films its frames with that camera and records it in the
+    model; eval-depth then films its own held-out frames the same way; frames filmed
+    with another horizon are refused by name, not silently mixed."""
+    run = tmp_path / "run"
+    assert _run(["train-depth", "--smoke", "--quiet", "--horizon-row", "4", "--dir",
+                 str(run)]) == 0
+    from minid3rqn.depth.data import load_sequence
+    from minid3rqn.depth.evaluate import DepthEstimator
+    assert load_sequence(run / "train.npz").K[1, 2] == 4.0
+    assert DepthEstimator.load(run / "model.npz").horizon_row == 4.0
+    assert DepthEstimator.load(run / "checkpoint.npz").horizon_row == 4.0
+    capsys.readouterr()
+    fresh = tmp_path / "fresh_test.npz"            # collected here, with the model's camera
+    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-frames", "6",
+                 "--test-data", str(fresh)]) == 0
+    assert load_sequence(fresh).K[1, 2] == 4.0
+    with pytest.raises(SystemExit, match="horizon at row 4.*row 15.5"):
+        _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
+              str(run / "test.npz"), "--horizon-row", "15.5"])
+    with pytest.raises(SystemExit, match="train-depth --horizon-row: Camera: horizon_row"):
+        _run(["train-depth", "--smoke", "--quiet", "--horizon-row", "40", "--dir",
+              str(tmp_path / "bad")])
+
+
 def test_example_smoke(tmp_path):
     out = subprocess.run([sys.executable, str(ROOT / "examples" / "03_train_depth.py"),
                           "--smoke", "--out", str(tmp_path)], capture_output=True, text=True,

@@ -214,6 +214,48 @@ def test_fly_main_job_smoke(tmp_path, capsys):
         commands.run_fly(args)
 
 
+def test_the_camera_must_match_the_depth_model_and_the_q_nets(tmp_path):
+    """A raised horizon (FlightsConfig.horizon_row) reaches the flights' camera; a depth
+    model or a Q-net trained with another camera is refused by name."""
+    fl = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, horizon_row=4))
+    assert fl.camera.cy == 4.0
+    fl.reset()
+    depth, _, _ = fl.observe()
+    floor = 1.0 / ((31 - 4) / 52)                 # the lowest row sees the floor 1.93 m ahead
+    assert depth.shape == (2, 32, 104) and np.all(depth[:, -1] <= floor + 1e-4)
+
+    class Estimator:                                 # trained on the default camera
+        horizon_row, flip = 15.5, False
+
+        def predict(self, rgb):
+            return np.ones(rgb.shape[:3], np.float32)
+    with pytest.raises(ValueError, match="trained on frames with the horizon at row 15.5"):
+        Flights("basic", 2, seed=0, depth="pred", depth_estimator=Estimator(),
+                config=FlightsConfig(n_worlds=2, horizon_row=4))
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    args = p.parse_args(["--smoke", "--quiet", "--horizon-row", "4",
+                         "--out", str(tmp_path / "run")])
+    assert commands.run_train_agent(args) == 0
+    model = tmp_path / "run" / "model.npz"
+    assert commands.model_horizon(QNetPolicy.load(model).meta) == 4.0
+    p = argparse.ArgumentParser()
+    commands.add_arguments_evaluate(p)
+    ok = p.parse_args([str(model), "--flights", "2", "--steps", "2", "--quiet",
+                       "--json", str(tmp_path / "r.jsonl")])
+    assert commands.run_evaluate(ok) == 0                  # the net's own horizon, found
+    assert json.loads((tmp_path / "r.jsonl").read_text())["horizon_row"] == 4.0
+    bad = p.parse_args([str(model), "--flights", "2", "--steps", "2", "--quiet",
+                        "--horizon-row", "15.5"])
+    with pytest.raises(SystemExit, match="trained with the horizon at row 4"):
+        commands.run_evaluate(bad)
+    if SHIPPED_DEPTH.exists():                            # the shipped DispNet: the middle row
+        bad = p.parse_args([str(model), "--flights", "2", "--steps", "2", "--quiet",
+                            "--depth", "pred"])
+        with pytest.raises(SystemExit, match="trained with the horizon at row 4"):
+            commands.run_evaluate(bad)
+
+
 def test_recorded_result_picks_the_largest_matching_evaluation(tmp_path):
     model = tmp_path / "m.npz"
     rows = [{"scenario": "basic", "depth": "pred", "flights": 500, "seed": 1, "rate": 0.5,

@@ -52,6 +52,29 @@ def test_camera_rejects_bad_configs(kwargs, error):
         Camera(**kwargs)
 
 
+def test_camera_horizon_row():
+    """horizon_row moves the principal point (the horizon) up: more floor is seen, and
+    nearer; the middle row is the default camera."""
+    cam, raised = Camera(), Camera(horizon_row=4)
+    assert raised.cy == 4.0 and raised.K[1, 2] == 4.0 and raised.K[0, 2] == cam.cx
+    np.testing.assert_allclose(raised.K @ raised.K_inv, np.eye(3), atol=1e-12)
+    assert cam.floor_reach() == pytest.approx(52 / 15.5)        # 1 m / y_n of the last row
+    assert raised.floor_reach() == pytest.approx(52 / 27)
+    assert Camera(horizon_row=15.5) == cam and hash(Camera(horizon_row=15.5)) == hash(cam)
+    # twice the resolution: the same horizon, the same rays at the image edges
+    big = raised.scaled(2)
+    assert big.cy == pytest.approx(8.5)
+    assert big.row_rays()[-1] == pytest.approx((63 - 8.5) / 104)
+    assert (big.height - 0.5 - big.cy) / big.fy == pytest.approx((31.5 - 4) / 52)
+
+
+@pytest.mark.parametrize("row, error", [(-1, ValueError), (31.5, ValueError),
+                                        ("top", TypeError), (True, TypeError)])
+def test_camera_rejects_bad_horizon_rows(row, error):
+    with pytest.raises(error, match="Camera: horizon_row"):
+        Camera(horizon_row=row)
+
+
 # ----------------------------------------------------------------------------- scenes
 
 def test_make_scene_errors():
@@ -141,8 +164,10 @@ def test_depth_equals_pymunk_ray_hits(scenes, name):
             assert depth[n, cam.height // 2, u] == pytest.approx(q.alpha * reach, rel=1e-6)
 
 
-def test_depth_of_floor_and_ceiling(scenes):
-    scene, cam = scenes["basic"], Camera(64, 208)
+@pytest.mark.parametrize("cam", [Camera(64, 208), Camera(64, 208, horizon_row=8.5)],
+                         ids=["middle", "raised-horizon"])
+def test_depth_of_floor_and_ceiling(scenes, cam):
+    scene = scenes["basic"]
     pose = start_poses(scene, 1)[0]
     _, depth = render(scene, pose, cam)
     t = cast_columns(scene.batch(), pose[None], cam.column_rays())["t"][0]
@@ -152,10 +177,12 @@ def test_depth_of_floor_and_ceiling(scenes):
     assert np.all(np.isfinite(depth)) and depth.min() > 0
 
 
-def test_backprojected_pixels_lie_on_surfaces(scenes):
+@pytest.mark.parametrize("cam", [Camera(), Camera(horizon_row=4)],
+                         ids=["middle", "raised-horizon"])
+def test_backprojected_pixels_lie_on_surfaces(scenes, cam):
     """Every pixel back-projected with its depth lands on the floor, the ceiling or an
     obstacle surface: the depth is exactly consistent with K."""
-    scene, cam = scenes["intersections"], Camera()
+    scene = scenes["intersections"]
     pose = start_poses(scene, 1, seed=4)[0]
     _, depth = render(scene, pose, cam)
     pts = backproject(depth, cam.K).reshape(-1, 4 - 1)

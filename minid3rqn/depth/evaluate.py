@@ -100,7 +100,8 @@ class DepthEstimator:
             net = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales)
             net.load_state_dict({k[5:]: v for k, v in arrays.items() if k.startswith("disp.")})
             # With the known-speed term the network's depth is already in metres.
-            return cls(net, 1.0, {"iteration": meta["iteration"]})
+            kept = {k: meta[k] for k in ("iteration", "horizon_row") if k in meta}
+            return cls(net, 1.0, kept)
         if not meta or "dispnet" not in meta:
             raise ValueError(f"DepthEstimator.load: {str(path)!r} is not a depth model file "
                              f"(no 'dispnet' metadata); write one with train-depth")

@@ -255,7 +255,8 @@ class Trainer:
         arrays.update({f"pose.{k}": v for k, v in self.pose.state_dict().items()})
         arrays.update({f"opt.{k}": v for k, v in self.opt.state_dict().items()})
         meta = {"iteration": self.iteration, "config": self.cfg.to_dict(),
-                "rng": _jsonable(self.rng.bit_generator.state), "history": self.history}
+                "rng": _jsonable(self.rng.bit_generator.state), "history": self.history,
+                "horizon_row": float(self.seq.K[1, 2])}      # the camera of the frames
         return save_npz(path, arrays, meta)
 
     def init_from(self, path) -> None:
