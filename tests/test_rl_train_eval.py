@@ -214,6 +214,19 @@ def test_fly_main_job_smoke(tmp_path, capsys):
         commands.run_fly(args)
 
 
+def test_reactive_rule_reads_the_rows_around_the_camera_horizon():
+    """Walls only in the rows around the horizon (row 4), floor elsewhere: the rule finds
+    them there, and turns away from a wall on the left to the free right."""
+    depth = np.full((1, 32, 104), 8.0)            # far floor below ... the horizon band:
+    depth[:, 2:6, :52] = 1.0                      # a wall close on the left
+    depth[:, 2:6, 52:] = 9.0                      # open on the right
+    raised = ReactivePolicy(ACTIONS, horizon_row=4)
+    assert raised.profile(depth)[0].min() == 1.0
+    assert ACTIONS[raised.act({"depth": depth})[0], 1] < 0      # a right turn
+    middle = ReactivePolicy(ACTIONS)              # reading the middle rows, it sees no wall
+    assert middle.profile(depth)[0].min() == 8.0
+
+
 def test_the_camera_must_match_the_depth_model_and_the_q_nets(tmp_path):
     """A raised horizon (FlightsConfig.horizon_row) reaches the flights' camera; a depth
     model or a Q-net trained with another camera is refused by name."""

@@ -293,12 +293,15 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
 
 def run_evaluate(args) -> int:
     from .evaluate import evaluate_policy
+    from .policies import ReactivePolicy
     from .flights import FlightsConfig
     est = _estimator_for(args.depth, args.depth_model, args.scenario, args.flip_tta)
     for spec in args.policies:
         pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES
                           else None, mirror=args.mirror)
         row = horizon_for("evaluate", args.horizon_row, est, [pol])
+        if isinstance(pol, ReactivePolicy):      # it reads the rows around the horizon
+            pol.horizon_row = row
         res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
                               args.chunk, args.depth, est, progress=not args.quiet,
                               workers=args.workers,
