@@ -361,6 +361,19 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
                    help="a training checkpoint (runs/depth/<run>/checkpoint.npz): also report "
                         "its PoseNet's pose errors on these frames")
     add_argument_horizon_row(p)
+    p.add_argument("--band", default=None, metavar="ABOVE:BELOW",
+                   help="score only the rows from ABOVE rows above the horizon to BELOW "
+                        "rows below it (4:15.5: the band that the default camera and one "
+                        "with --horizon-row 4 both see)")
+
+
+def _band(text: str):
+    try:
+        above, below = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise SystemExit(f"eval-depth --band: expected ABOVE:BELOW, two numbers of rows "
+                         f"(e.g. 4:15.5); got {text!r}")
+    return above, below
 
 
 def run_eval_depth(args) -> int:
@@ -376,12 +389,24 @@ def run_eval_depth(args) -> int:
     if args.posenet:
         from .train import load_posenet
         posenet = load_posenet(args.posenet)
+    band = None
+    if args.band:
+        from .evaluate import horizon_band
+        try:
+            band = horizon_band(test.K, test.rgb.shape[1], *_band(args.band))
+        except ValueError as e:
+            raise SystemExit(f"eval-depth --band: {e}")
     t0 = time.time()
-    results = evaluate(estimator, test, posenet)
+    results = evaluate(estimator, test, posenet, rows=band)
     results["seconds"] = round(time.time() - t0, 2)
+    if band is not None:
+        results["band_rows"] = [int(np.flatnonzero(band)[0]), int(np.flatnonzero(band)[-1])]
     if args.by_depth:
         from .evaluate import errors_by_depth
-        rows = errors_by_depth(estimator.predict(test.rgb), test.depth,
+        pred, gt = estimator.predict(test.rgb), test.depth
+        if band is not None:
+            pred, gt = pred[:, band], gt[:, band]
+        rows = errors_by_depth(pred, gt,
                                median_scaling=not args.metric_scale, columns=args.columns)
         print("GT depth (m)   share   abs rel   signed rel (> 0: too far)   "
               + ("[the model's metric scale]" if args.metric_scale else "[median-scaled]")

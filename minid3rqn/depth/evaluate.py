@@ -276,9 +276,27 @@ def pose_errors(posenet, seq: Sequence, max_triplets: int = 500) -> dict:
         t_err.mean() / np.concatenate(t_gt_norm).mean()), "rot_err_deg": float(r_err.mean())}
 
 
+def horizon_band(K, height: int, above: float, below: float) -> np.ndarray:
+    """(H,) bool: the image rows v from ``above`` rows above the horizon (row cy = K[1, 2])
+    to ``below`` rows below it, -above <= v - cy <= below. Two cameras with different
+    horizon rows (``Camera.horizon_row``) see the same band of directions there, so
+    their depth can be scored on the same part of the world."""
+    if above < 0 or below < 0:
+        raise ValueError(f"horizon_band: above and below must be >= 0 rows; got "
+                         f"{above}, {below}")
+    off = np.arange(height) - float(K[1, 2])
+    rows = (off >= -above) & (off <= below)
+    if not rows.any():
+        raise ValueError(f"horizon_band: no image row lies from {above} rows above to "
+                         f"{below} below the horizon (row {float(K[1, 2]):g} of {height})")
+    return rows
+
+
 def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
-             max_frames: int | None = None) -> dict:
-    """Depth metrics (median-scaled and speed-scaled) on ``seq``; pose errors if given."""
+             max_frames: int | None = None, rows=None) -> dict:
+    """Depth metrics (median-scaled and speed-scaled) on ``seq``; pose errors if given.
+    ``rows``: (H,) bool, score only these image rows (the network sees whole frames;
+    the median scaling uses the scored pixels), e.g. ``horizon_band``."""
     if seq.depth is None:
         raise ValueError("evaluate: the sequence has no GT depth")
     idx = np.arange(len(seq))
@@ -286,6 +304,8 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
         idx = idx[np.linspace(0, len(idx) - 1, max_frames).astype(int)]
     pred = estimator.predict(seq.rgb[idx])
     gt = seq.depth[idx]
+    if rows is not None:
+        pred, gt = pred[:, rows], gt[:, rows]
     out = {"frames": int(len(idx))}
     out.update(depth_metrics(pred, gt))
     out.update({f"{k}_speed_scale": v for k, v in
