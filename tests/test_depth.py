@@ -7,7 +7,7 @@ import pytest
 from minid3rqn import autograd as ag
 from minid3rqn.autograd import Tensor
 from minid3rqn.depth.data import Sequence, collect, load_sequence, save_sequence, triplet_indices
-from minid3rqn.depth.evaluate import DepthEstimator, depth_metrics, evaluate
+from minid3rqn.depth.evaluate import DepthEstimator, depth_metrics, evaluate, horizon_band
 from minid3rqn.depth.geometry import (check_intrinsics, inverse_warp, matrix_to_pose_vec,
                                       pose_vec_to_mat)
 from minid3rqn.depth.losses import LossConfig, photometric_error, view_synthesis_loss
@@ -392,6 +392,35 @@ def test_gyro_yaw_mode_warps_with_the_gyro(tiny_sequence):
         train_module.view_synthesis_loss = real
     truth = trainer.gt_pose_vectors(*trainer._last)[..., 4]
     np.testing.assert_allclose(seen["poses"][..., 4], truth, atol=1e-6)
+
+
+def test_horizon_band_picks_the_same_directions_in_both_cameras():
+    """--band 4:15.5: 20 rows in each camera, the same ray slopes to half a row; a band
+    outside the image or a negative extent is refused by name."""
+    middle, raised = Camera(), Camera(horizon_row=4)
+    a = horizon_band(middle.K, 32, 4, 15.5)
+    b = horizon_band(raised.K, 32, 4, 15.5)
+    assert a.sum() == b.sum() == 20
+    assert np.flatnonzero(a)[[0, -1]].tolist() == [12, 31]
+    assert np.flatnonzero(b)[[0, -1]].tolist() == [0, 19]
+    np.testing.assert_allclose(middle.row_rays()[a], raised.row_rays()[b], atol=0.5 / 52)
+    with pytest.raises(ValueError, match="horizon_band: above and below must be >= 0"):
+        horizon_band(middle.K, 32, -1, 4)
+    with pytest.raises(ValueError, match="horizon_band: no image row"):
+        horizon_band(np.array([[52, 0, 51.5], [0, 52, 40.0], [0, 0, 1]]), 32, 1, 1)
+
+
+def test_evaluate_on_rows_scores_only_those_rows(tiny_sequence):
+    """A prediction right in some rows and wrong in others scores perfectly on those."""
+    class Half:                # evaluate asks for every frame in order: GT depth in the
+        def predict(self, rgb):  # top half, 3x too far below
+            assert len(rgb) == len(tiny_sequence)
+            d = tiny_sequence.depth.copy()
+            d[:, 8:] *= 3.0
+            return d
+    rows = np.arange(16) < 8
+    assert evaluate(Half(), tiny_sequence, rows=rows)["abs_rel"] == pytest.approx(0.0, abs=1e-6)
+    assert evaluate(Half(), tiny_sequence)["abs_rel"] > 0.1
 
 
 def test_errors_by_depth_locates_a_biased_band():
