@@ -70,6 +70,13 @@ def test_a_raised_horizon_is_kept_with_the_data_and_the_model(tmp_path, capsys):
     with pytest.raises(SystemExit, match="horizon at row 4.*row 15.5"):
         _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
               str(run / "test.npz"), "--horizon-row", "15.5"])
+    capsys.readouterr()                            # --band: the rows both cameras see
+    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
+                 str(fresh), "--band", "4:15.5"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["band_rows"] == [0, 19]
+    with pytest.raises(SystemExit, match="eval-depth --band: expected ABOVE:BELOW"):
+        _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data", str(fresh),
+              "--band", "4"])
     with pytest.raises(SystemExit, match="train-depth --horizon-row: Camera: horizon_row"):
         _run(["train-depth", "--smoke", "--quiet", "--horizon-row", "40", "--dir",
               str(tmp_path / "bad")])
