@@ -71,22 +71,28 @@ def add_arguments_collect(p: argparse.ArgumentParser) -> None:
     add_argument_horizon_row(p)
 
 
-HORIZON_HELP = ("image row of the horizon (default: the middle row, 15.5 of 32); a smaller "
-                "value shows more floor: 4 sees the floor from 1.93 m ahead instead of "
-                "3.35 m (docs/depth.md section 7)")
+def add_argument_horizon_row(p: argparse.ArgumentParser,
+                             default: str = "the middle row, 15.5 of 32") -> None:
+    """``--horizon-row`` (Camera.horizon_row), the same in every command; ``default``
+    says what the command uses when it is not given."""
+    p.add_argument("--horizon-row", type=float, default=None,
+                   help=f"image row of the horizon (default: {default}); a smaller value "
+                        f"shows more floor: 4 sees the floor from 1.93 m ahead instead of "
+                        f"3.35 m (docs/depth.md section 7)")
 
 
-def add_argument_horizon_row(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--horizon-row", type=float, default=None, help=HORIZON_HELP)
+def camera_or_exit(command: str, horizon_row=None):
+    """The world's camera with this horizon row, or a clear exit naming the option."""
+    from ..world.camera import Camera
+    try:
+        return Camera(horizon_row=horizon_row)
+    except ValueError as e:
+        raise SystemExit(f"{command} --horizon-row: {e}")
 
 
 def camera_from_args(args, command: str):
     """The world's camera with the command's ``--horizon-row``, or a clear exit."""
-    from ..world.camera import Camera
-    try:
-        return Camera(horizon_row=getattr(args, "horizon_row", None))
-    except ValueError as e:
-        raise SystemExit(f"{command} --horizon-row: {e}")
+    return camera_or_exit(command, getattr(args, "horizon_row", None))
 
 
 def run_collect(args) -> int:

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..depth.commands import add_argument_horizon_row
+
 MODELS = Path(__file__).resolve().parent.parent / "models"
 RUNS = Path("runs")
 SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
@@ -32,9 +34,7 @@ def load_depth_estimator(path, flip: bool = False):
     return DepthEstimator.load(path, flip=flip)
 
 
-HORIZON_HELP = ("the camera's horizon row (Camera.horizon_row; default: the depth model's, "
-                "else the middle row): 4 shows the floor from 1.93 m ahead instead of "
-                "3.35 m (docs/depth.md section 7)")
+HORIZON_DEFAULT = "the depth model's, else the Q-nets', else the middle row"
 
 
 def model_horizon(meta: dict | None) -> float | None:
@@ -47,6 +47,7 @@ def horizon_for(command: str, given, est, policies=()) -> float | None:
     model's (a DispNet reads frames like the ones it was trained on), else the Q-nets'.
     Every Q-net and the depth model must agree with it: a net trained with one camera
     flown with another sees the floor where it never saw it, and says nothing."""
+    from ..depth.commands import camera_or_exit
     from ..world import Camera
     default = Camera().cy
     nets = [m for p in policies for m in getattr(p, "members", [p]) if hasattr(m, "qnet")]
@@ -56,10 +57,7 @@ def horizon_for(command: str, given, est, policies=()) -> float | None:
     if row is None:
         rows = {model_horizon(getattr(m, "meta", None)) for m in nets}
         row = rows.pop() if len(rows) == 1 else None
-    try:
-        cy = Camera(horizon_row=row).cy
-    except ValueError as e:
-        raise SystemExit(f"{command} --horizon-row: {e}")
+    cy = camera_or_exit(command, row).cy
     if est is not None and abs(est.horizon_row - cy) > 1e-6:
         raise SystemExit(f"{command}: the depth model was trained with the horizon at row "
                          f"{est.horizon_row:g}, but --horizon-row is {cy:g}")
@@ -115,7 +113,7 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth", default=d.depth, choices=["gt", "pred"])
     p.add_argument("--depth-model", default=None, help="DepthEstimator .npz (--depth pred)")
     p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
-    p.add_argument("--horizon-row", type=float, default=None, help=HORIZON_HELP)
+    add_argument_horizon_row(p, HORIZON_DEFAULT)
     p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
     p.add_argument("--eps-start", type=float, default=d.eps_start)
     p.add_argument("--lr", type=float, default=d.agent.lr, help="Adam step size (paper: 3e-4)")
@@ -286,7 +284,7 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
                    help="Q-nets: each also flies the left-right mirrored view, and the "
                         "policy is greedy on the mean Q-values of all (a free two-member "
                         "ensemble per net; docs/d3rqn.md section 10)")
-    p.add_argument("--horizon-row", type=float, default=None, help=HORIZON_HELP)
+    add_argument_horizon_row(p, HORIZON_DEFAULT)
     p.add_argument("--json", default=None, help="append results to this JSON-lines file")
     p.add_argument("--quiet", action="store_true")
 
@@ -327,7 +325,7 @@ def add_arguments_fly(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
     p.add_argument("--mirror", action="store_true",
                    help="each Q-net also flies the mirrored view (a free two-member ensemble)")
-    p.add_argument("--horizon-row", type=float, default=None, help=HORIZON_HELP)
+    add_argument_horizon_row(p, HORIZON_DEFAULT)
     p.add_argument("--scenario", default="basic")
     p.add_argument("--flights", type=int, default=32,
                    help="flights for the success rate (DispNet runs on every frame: keep it small)")
@@ -354,9 +352,9 @@ def run_fly(args) -> int:
             depth = "gt"
     est = load_depth_estimator(depth_model, args.flip_tta) if depth == "pred" else None
     from .policies import QNetPolicy
-    row = horizon_for("fly", args.horizon_row, est,
-                      [QNetPolicy.load(part) for part in model.split("+")])
-    out = fly(model, est, args.scenario, seed, args.flights, args.gif, args.steps,
+    nets = [QNetPolicy.load(part, "D3RQN") for part in model.split("+")]
+    row = horizon_for("fly", args.horizon_row, est, nets)
+    out = fly(nets, est, args.scenario, seed, args.flights, args.gif, args.steps,
               mirror=args.mirror, horizon_row=row)
     print(json.dumps(out))
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "

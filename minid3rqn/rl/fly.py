@@ -22,11 +22,13 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
         gif="fly.gif", max_steps: int = 50, mirror: bool = False,
         horizon_row: float | None = None) -> dict:
     """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate.
-    ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q);
+    ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q), or
+    the loaded ``QNetPolicy`` list;
     ``mirror``: each net also flies the mirrored view (``QNetPolicy.mirrored``);
     ``horizon_row``: the camera's (``Camera.horizon_row``; None: the middle row)."""
     t0 = time.time()
-    members = [QNetPolicy.load(part, "D3RQN") for part in str(model).split("+")]
+    members = list(model) if isinstance(model, (list, tuple)) else \
+        [QNetPolicy.load(part, "D3RQN") for part in str(model).split("+")]
     if mirror:
         members += [m.mirrored() for m in members]
     policy = members[0] if len(members) == 1 else EnsemblePolicy(members)
