@@ -102,15 +102,16 @@ def _chunk_seeds(seed: int, n_flights: int, chunk: int) -> list[tuple[int, int]]
 
 
 def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsConfig,
-               depth: str, depth_estimator, max_steps: int) -> np.ndarray:
+               depth: str, depth_estimator, max_steps: int,
+               flights_factory=Flights) -> np.ndarray:
     """Steps survived by the ``n`` flights of one chunk (world seed ``child``)."""
     # A policy with a random generator (Random, an epsilon-greedy Q-net) draws from one
     # seeded by the chunk: a chunk's result is the same in any process, in any order.
     # (A duck-typed policy without ``reseed`` keeps its own generator.)
     if hasattr(policy, "reseed"):
         policy.reseed((child, 0x5EED))
-    flights = Flights(scenario, n, seed=child, config=cfg, depth=depth,
-                      depth_estimator=depth_estimator, autoreset=False)
+    flights = flights_factory(scenario, n, seed=child, config=cfg, depth=depth,
+                              depth_estimator=depth_estimator, autoreset=False)
     return run_flights(policy, flights, max_steps)
 
 
@@ -127,13 +128,16 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
                     seed: int = 12345, max_steps: int = 50, chunk: int = 500,
                     depth: str = "gt", depth_estimator=None,
                     flights_config: FlightsConfig | None = None,
-                    progress: bool = True, workers: int = 1) -> EvalResult:
+                    progress: bool = True, workers: int = 1,
+                    flights_factory=None) -> EvalResult:
     """Success rate of ``policy`` over ``n_flights`` fresh flights (greedy, batched).
 
     The flights are flown ``chunk`` at a time, each chunk from its own seed
     (``_chunk_seeds``). ``workers`` > 1 flies the chunks in that many processes (one
     per core; forked, so the policy and the depth network are shared, not pickled):
-    the result is the same as with one.
+    the result is the same as with one. ``flights_factory`` (default ``Flights``) makes
+    each chunk's flights from ``Flights``'s arguments: a subclass that changes what the
+    policy sees (``examples/07_which_depth_errors_matter.py``) is flown the same way.
     """
     if n_flights < 1:
         raise ValueError(f"evaluate_policy: n_flights must be >= 1; got {n_flights}")
@@ -157,7 +161,8 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
         bar = tqdm(total=n_flights, unit="flight", desc=f"eval {policy.name} {scenario}",
                    dynamic_ncols=True, leave=False)
     global _FORKED
-    _FORKED = (policy, scenario, cfg, depth, depth_estimator, max_steps)
+    _FORKED = (policy, scenario, cfg, depth, depth_estimator, max_steps,
+               flights_factory or Flights)
     survived = []
     try:
         with (mp.get_context("fork").Pool(workers) if workers > 1 else nullcontext()) as pool:

@@ -1,0 +1,159 @@
+"""Which of the DispNet's errors cost the Q-net its flights?
+
+A D3RQN trained on ground-truth depth flies about 0.09 worse on the DispNet's depth,
+and a better DispNet (by abs rel) does not close the gap (docs/results.md). This
+example asks *which* errors matter, by flying the same Q-net on views that are the
+DispNet's depth everywhere except in one part, where ground truth is put back:
+
+    predicted                 the DispNet's depth (the real pipeline)
+    GT                        ground truth everywhere (the net's best case)
+    GT where near (< R m)     GT wherever the truth or the DispNet says "nearer than R"
+                              (fixes missed and imagined near obstacles alike)
+    GT where far (>= R m)     the rest: GT wherever both say "R or farther"
+    GT in middle / sides      GT in the middle third of the columns, or in the outer two
+    GT below / above horizon  GT in the rows that see the floor, or the ceiling
+    scale fixed per frame     the DispNet's depth times median(GT) / median(predicted)
+                              of that frame: its shape, with the right overall scale
+
+If putting back one part recovers most of the gap, the errors there are what cost the
+flights. Each line is the success rate over the same test worlds and start poses
+(evaluation seed), with its 95% interval; only what the net sees changes.
+
+    python examples/07_which_depth_errors_matter.py [--smoke] [--flights 500] \\
+        [--qnet M.npz] [--depth-model D.npz] [--near 2.0] [--only NAME ...]
+
+Ground truth is used only to build the views flown here; nothing is trained.
+"""
+import argparse
+import json
+import time
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from minid3rqn.rl.commands import VARIANT_NAMES, horizon_for, load_depth_estimator
+from minid3rqn.rl.evaluate import evaluate_policy
+from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
+from minid3rqn.rl.policies import QNetPolicy
+
+MODELS = Path(__file__).resolve().parents[1] / "minid3rqn" / "models"
+
+
+class MixedDepthFlights(Flights):
+    """Flights whose policy sees ``mix(gt, pred, camera)`` (metres, (n, H, W) each) in
+    place of the DispNet's depth. Everything else (worlds, poses, collisions) is
+    ``Flights``'s, so the same seed flies the same test flights."""
+
+    def __init__(self, *args, mix=None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.mix = mix
+
+    def observe(self, idx=None):
+        depth, _, rgb = super().observe(idx)            # the DispNet's depth (metres)
+        idx = np.arange(self.n) if idx is None else np.asarray(idx)
+        gt = depth_only(self._sub_batch(idx), self.poses[idx], self.camera)
+        depth = self.mix(gt, depth, self.camera).astype(np.float32)
+        frames = np.clip(depth, 0.0, self.cfg.max_depth) / self.cfg.max_depth
+        return depth, frames.astype(np.float32), rgb
+
+
+# -- the views: each puts ground truth back in one part of the DispNet's depth ---------
+def predicted(gt, pred, cam):
+    return pred
+
+
+def ground_truth(gt, pred, cam):
+    return gt
+
+
+def near(gt, pred, cam, r):
+    return np.where(np.minimum(gt, pred) < r, gt, pred)
+
+
+def far(gt, pred, cam, r):
+    return np.where(np.minimum(gt, pred) >= r, gt, pred)
+
+
+def columns(gt, pred, cam, middle: bool):
+    W = gt.shape[-1]
+    is_mid = (np.arange(W) >= W // 3) & (np.arange(W) < W - W // 3)
+    return np.where(is_mid if middle else ~is_mid, gt, pred)
+
+
+def rows(gt, pred, cam, below: bool):
+    v = np.arange(gt.shape[-2])[:, None]          # image rows grow downwards
+    sees_floor = v > cam.cy
+    return np.where(sees_floor if below else ~sees_floor, gt, pred)
+
+
+def scale_fixed(gt, pred, cam):
+    s = np.median(gt, axis=(1, 2)) / np.maximum(np.median(pred, axis=(1, 2)), 1e-6)
+    return pred * s[:, None, None]
+
+
+def views(r: float) -> dict:
+    return {"predicted": predicted,
+            "GT": ground_truth,
+            f"GT where near (< {r:g} m)": partial(near, r=r),
+            f"GT where far (>= {r:g} m)": partial(far, r=r),
+            "GT in middle third": partial(columns, middle=True),
+            "GT in outer thirds": partial(columns, middle=False),
+            "GT below horizon": partial(rows, below=True),
+            "GT above horizon": partial(rows, below=False),
+            "scale fixed per frame": scale_fixed}
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--qnet", default=str(MODELS / "d3rqn_basic.npz"),
+                   help="D3RQN .npz (default: the shipped one, G)")
+    p.add_argument("--depth-model", default=str(MODELS / "depth_basic.npz"),
+                   help="DispNet .npz (default: the shipped basic one)")
+    p.add_argument("--scenario", default="basic")
+    p.add_argument("--flights", type=int, default=500)
+    p.add_argument("--seed", type=int, default=12345, help="evaluation seed")
+    p.add_argument("--near", type=float, default=2.0, help="R, metres")
+    p.add_argument("--only", nargs="*", default=None,
+                   help="fly only the views whose names start with these words")
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--json", default=None, help="append one JSON line per view here")
+    p.add_argument("--smoke", action="store_true", help="a few flights, to check it runs")
+    args = p.parse_args()
+    if args.near <= 0:
+        p.error(f"--near must be a positive distance in metres; got {args.near}")
+    n = 8 if args.smoke else args.flights
+    steps = 5 if args.smoke else 50
+
+    est = load_depth_estimator(args.depth_model)
+    pol = QNetPolicy.load(args.qnet)
+    # the camera the DispNet was trained with; the Q-net must have been trained with it too
+    cfg = FlightsConfig(horizon_row=horizon_for("07_which_depth_errors_matter", None, est,
+                                                [pol]))
+    chosen = views(args.near)
+    if args.only:
+        chosen = {k: v for k, v in chosen.items()
+                  if any(k.lower().startswith(w.lower()) for w in args.only)}
+        if not chosen:
+            raise SystemExit(f"--only {args.only}: no view starts with those words; the "
+                             f"views are {list(views(args.near))}")
+    from minid3rqn.nets.qnet import variant_name
+    print(f"{VARIANT_NAMES[variant_name(pol.qnet.config)]} {args.qnet} on {args.scenario}, "
+          f"DispNet {args.depth_model}; {n} flights, evaluation seed {args.seed}")
+    for name, mix in chosen.items():
+        t0 = time.time()
+        res = evaluate_policy(pol, args.scenario, n, args.seed, steps, depth="pred",
+                              depth_estimator=est, flights_config=cfg, progress=False,
+                              workers=args.workers,
+                              flights_factory=partial(MixedDepthFlights, mix=mix))
+        print(f"  {name:<26} {res.rate:.3f} [{res.ci_low:.3f}, {res.ci_high:.3f}]  "
+              f"({res.successes}/{n}, {time.time() - t0:.0f} s)", flush=True)
+        if args.json:
+            with open(args.json, "a") as f:
+                f.write(json.dumps({"view": name, "qnet": args.qnet,
+                                    "depth_model": args.depth_model, "near": args.near,
+                                    **res.to_dict()}) + "\n")
+
+
+if __name__ == "__main__":
+    main()
