@@ -10,7 +10,7 @@ import pytest
 
 from minid3rqn.rl import commands
 from minid3rqn.rl.evaluate import evaluate_policy, wilson_interval
-from minid3rqn.rl.flights import Flights, FlightsConfig
+from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
 from minid3rqn.rl.policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy,
                                    StraightPolicy)
 from minid3rqn.rl.train import TrainConfig, Trainer
@@ -103,6 +103,39 @@ def test_evaluation_is_the_same_in_parallel_and_in_any_chunk_order():
     evaluate_policy(used, "basic", n_flights=4, chunk=4, max_steps=8, seed=99, progress=False)
     again = evaluate_policy(used, "basic", n_flights=12, chunk=4, max_steps=8, progress=False)
     assert again.mean_steps == results["random"].mean_steps
+
+
+class _FlatEstimator:
+    """A stand-in DispNet: 5 m everywhere."""
+
+    def predict(self, rgb):
+        return np.full(rgb.shape[:3], 5.0, np.float32)
+
+
+class _GTInPredMode(Flights):
+    """Pred-mode flights whose policy sees ground truth (what examples/07 builds on)."""
+
+    def observe(self, idx=None):
+        _, _, rgb = super().observe(idx)
+        idx = np.arange(self.n) if idx is None else np.asarray(idx)
+        gt = depth_only(self._sub_batch(idx), self.poses[idx], self.camera)
+        return gt, (np.clip(gt, 0, self.cfg.max_depth) / self.cfg.max_depth
+                    ).astype(np.float32), rgb
+
+
+def test_evaluation_flies_the_flights_the_factory_makes():
+    """``flights_factory`` is what each chunk is flown in: a pred-mode subclass that
+    shows ground truth flies exactly the GT evaluation (same worlds, same starts), in one
+    process or two; the flat stand-in DispNet alone flies differently."""
+    pol = ReactivePolicy(ACTIONS)
+    kw = dict(n_flights=12, chunk=4, max_steps=20, progress=False)
+    gt = evaluate_policy(pol, "basic", depth="gt", **kw)
+    flat = evaluate_policy(pol, "basic", depth="pred", depth_estimator=_FlatEstimator(), **kw)
+    for workers in (1, 2):
+        mixed = evaluate_policy(pol, "basic", depth="pred", depth_estimator=_FlatEstimator(),
+                                flights_factory=_GTInPredMode, workers=workers, **kw)
+        assert (mixed.successes, mixed.mean_steps) == (gt.successes, gt.mean_steps)
+    assert flat.mean_steps != gt.mean_steps
 
 
 def test_training_world_pool_is_set_and_checked():
