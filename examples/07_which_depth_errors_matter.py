@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from minid3rqn.rl.commands import VARIANT_NAMES, horizon_for, load_depth_estimator
+from minid3rqn.rl.commands import (VARIANT_NAMES, encoding_for, horizon_for,
+                                   load_depth_estimator)
 from minid3rqn.rl.evaluate import evaluate_policy
 from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
 from minid3rqn.rl.policies import QNetPolicy
@@ -54,8 +55,7 @@ class MixedDepthFlights(Flights):
         idx = np.arange(self.n) if idx is None else np.asarray(idx)
         gt = depth_only(self._sub_batch(idx), self.poses[idx], self.camera)
         depth = self.mix(gt, depth, self.camera).astype(np.float32)
-        frames = np.clip(depth, 0.0, self.cfg.max_depth) / self.cfg.max_depth
-        return depth, frames.astype(np.float32), rgb
+        return depth, self.encode(depth), rgb
 
 
 # -- the views: each puts ground truth back in one part of the DispNet's depth ---------
@@ -128,8 +128,10 @@ def main():
     est = load_depth_estimator(args.depth_model)
     pol = QNetPolicy.load(args.qnet)
     # the camera the DispNet was trained with; the Q-net must have been trained with it too
+    # and the frames encoded as the Q-net was trained to read them
     cfg = FlightsConfig(horizon_row=horizon_for("07_which_depth_errors_matter", None, est,
-                                                [pol]))
+                                                [pol]),
+                        encoding=encoding_for("07_which_depth_errors_matter", None, [pol]))
     chosen = views(args.near)
     if args.only:
         chosen = {k: v for k, v in chosen.items()

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..depth.commands import add_argument_horizon_row
+from .flights import ENCODINGS
 
 MODELS = Path(__file__).resolve().parent.parent / "models"
 RUNS = Path("runs")
@@ -71,6 +72,32 @@ def horizon_for(command: str, given, est, policies=()) -> float | None:
     return None if cy == default else cy
 
 
+def model_encoding(meta: dict | None) -> str:
+    """The frame encoding a Q-net was trained with ("depth" for nets from before it)."""
+    return (((meta or {}).get("train_config") or {}).get("flights") or {}).get("encoding",
+                                                                                "depth")
+
+
+def encoding_for(command: str, given, policies=()) -> str:
+    """The frame encoding a command's flights use (``FlightsConfig.encoding``): ``given``
+    (train-agent's ``--encoding``) if not None, else the Q-nets'. Every Q-net must have
+    been trained with it: a net fed inverse depth where it learned depth reads a wall
+    ahead as open space."""
+    nets = [m for p in policies for m in getattr(p, "members", [p]) if hasattr(m, "qnet")]
+    found = {model_encoding(getattr(m, "meta", None)) for m in nets}
+    if given is None and len(found) > 1:
+        raise SystemExit(f"{command}: these Q-nets were trained on different frame "
+                         f"encodings ({', '.join(sorted(found))}); fly nets of one together")
+    enc = given if given is not None else (found.pop() if found else "depth")
+    for m in nets:
+        trained = model_encoding(getattr(m, "meta", None))
+        if trained != enc:
+            raise SystemExit(f"{command}: Q-net {m.name!r} was trained on {trained!r} frames, "
+                             f"but these flights give {enc!r} frames (--encoding, or the "
+                             f"other Q-nets')")
+    return enc
+
+
 FLIP_HELP = ("depth: average the DispNet's disparity with its disparity on the mirrored "
              "frame (test-time flip; twice the inference cost; docs/depth.md section 7)")
 
@@ -114,6 +141,10 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth-model", default=None, help="DepthEstimator .npz (--depth pred)")
     p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
     add_argument_horizon_row(p, HORIZON_DEFAULT)
+    p.add_argument("--encoding", default=None, choices=list(ENCODINGS),
+                   help="what the Q-net reads: 'depth' (the paper's depth maps, / 10 m) or "
+                        "'inverse' (0.5 m / depth; ours). Default: the --init-model's, else "
+                        "depth")
     p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
     p.add_argument("--eps-start", type=float, default=d.eps_start)
     p.add_argument("--lr", type=float, default=d.agent.lr, help="Adam step size (paper: 3e-4)")
@@ -177,6 +208,7 @@ def run_train_agent(args) -> int:
     known = [p for p in [cfg.init_model, *cfg.teachers.split("+")] if p]
     known = [QNetPolicy.load(p) for p in known if Path(p).is_file()]
     cfg.flights.horizon_row = horizon_for("train-agent", args.horizon_row, est, known)
+    cfg.flights.encoding = encoding_for("train-agent", args.encoding, known)
     t0 = time.time()
     tr = train(cfg, out, depth_estimator=est, progress=not args.quiet, resume=args.resume)
     extra = {"command": _command_line(), "seed": cfg.seed,
@@ -300,10 +332,10 @@ def run_evaluate(args) -> int:
         row = horizon_for("evaluate", args.horizon_row, est, [pol])
         if isinstance(pol, ReactivePolicy):      # it reads the rows around the horizon
             pol.horizon_row = row
+        cfg = FlightsConfig(horizon_row=row, encoding=encoding_for("evaluate", None, [pol]))
         res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
                               args.chunk, args.depth, est, progress=not args.quiet,
-                              workers=args.workers,
-                              flights_config=FlightsConfig(horizon_row=row))
+                              workers=args.workers, flights_config=cfg)
         print(res.line(), flush=True)
         if args.json:
             with open(args.json, "a") as f:
@@ -355,7 +387,7 @@ def run_fly(args) -> int:
     nets = [QNetPolicy.load(part, "D3RQN") for part in model.split("+")]
     row = horizon_for("fly", args.horizon_row, est, nets)
     out = fly(nets, est, args.scenario, seed, args.flights, args.gif, args.steps,
-              mirror=args.mirror, horizon_row=row)
+              mirror=args.mirror, horizon_row=row, encoding=encoding_for("fly", None, nets))
     print(json.dumps(out))
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
           f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}) on {depth} depth; GIF: "

@@ -14,8 +14,16 @@ test flights are in fresh worlds) and starts at a random free pose. One ``step``
        DispNet's depth from the RGB frame (``depth="pred"``; metres through the
        estimator's own scale, fixed from the flight speed, times ``depth_scale``).
 
-The Q-nets read ``frames``: depth clipped to ``max_depth`` metres and divided by it,
-so values lie in [0, 1]. After ``max_steps`` actions without a collision a flight is
+The Q-nets read ``frames``, depth encoded into [0, 1] (``FlightsConfig.encoding``):
+
+    "depth"    (the paper's depth maps)  x = min(d, max_depth) / max_depth
+    "inverse"  (ours; inverse depth)     x = near / clip(d, near, max_depth),  near = 0.5 m
+
+Inverse depth spends the input's range near the drone: 1 m and 2 m are 0.5 and 0.25
+apart from 10 m's 0.05, where in depth they are 0.1 and 0.2 against 1.0. A monocular
+depth error of a given fraction is then smaller the farther away it is, as the
+DispNet's errors grow with distance (docs/results.md, "Which depth errors cost
+flights"). After ``max_steps`` actions without a collision a flight is
 *truncated* (a success, not a terminal state). With ``autoreset`` a finished flight
 restarts at once in a new world and start pose, and ``final_frames`` holds the last
 frame of the finished episode (the replay needs it for the bootstrap).
@@ -46,6 +54,23 @@ class FlightsConfig:
     test_worlds: bool = False    # draw worlds from the evaluation seed range
     horizon_row: float | None = None  # ours: the camera's horizon row (None: the middle row;
                                       # Camera.horizon_row, docs/depth.md section 7)
+    encoding: str = "depth"      # ours: what a frame's value is: "depth" or "inverse"
+                                 # (inverse depth; the module docstring)
+
+
+ENCODINGS = ("depth", "inverse")
+NEAR = SAFE_DISTANCE             # "inverse": the distance (m) encoded as 1
+
+
+def encode_depth(depth: np.ndarray, encoding: str = "depth", max_depth: float = 10.0) -> np.ndarray:
+    """Depth in metres -> the Q-net's frames in [0, 1] (float32); see the module docstring."""
+    if encoding == "depth":
+        x = np.clip(depth, 0.0, max_depth) / max_depth
+    elif encoding == "inverse":
+        x = NEAR / np.clip(depth, NEAR, max_depth)
+    else:
+        raise ValueError(f"encode_depth: encoding must be one of {ENCODINGS}; got {encoding!r}")
+    return x.astype(np.float32)
 
 
 @dataclass
@@ -78,6 +103,9 @@ class Flights:
                              "with predict(rgb uint8 (N, H, W, 3)) -> depth (N, H, W))")
         if n < 1:
             raise ValueError(f"Flights: n must be >= 1; got {n}")
+        if (config or FlightsConfig()).encoding not in ENCODINGS:
+            raise ValueError(f"Flights: config.encoding must be one of {ENCODINGS}; got "
+                             f"{config.encoding!r}")
         self.scenario, self.n = scenario, int(n)
         self.cfg = config or FlightsConfig()
         n_worlds = self.cfg.n_worlds
@@ -125,14 +153,16 @@ class Flights:
         else:
             rgb, _ = render_batch(sub, poses, self.camera)
             depth = np.asarray(self.estimator.predict(rgb), dtype=np.float32) * self.cfg.depth_scale
-        frames = np.clip(depth, 0.0, self.cfg.max_depth) / self.cfg.max_depth
-        return depth, frames.astype(np.float32), rgb
+        return depth, self.encode(depth), rgb
+
+    def encode(self, depth: np.ndarray) -> np.ndarray:
+        """Depth (metres) -> frames, in this configuration's encoding."""
+        return encode_depth(depth, self.cfg.encoding, self.cfg.max_depth)
 
     def gt_frames(self) -> np.ndarray:
         """GT depth frames (n, H, W) in [0, 1] of every flight at its current pose, in
         either depth mode: what a privileged teacher sees (``rl.distill``)."""
-        depth = depth_only(self.batch, self.poses, self.camera)
-        return (np.clip(depth, 0.0, self.cfg.max_depth) / self.cfg.max_depth).astype(np.float32)
+        return self.encode(depth_only(self.batch, self.poses, self.camera))
 
     def _sub_batch(self, idx) -> SceneBatch:
         """The worlds of flights ``idx`` as a SceneBatch."""
