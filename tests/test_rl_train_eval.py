@@ -10,7 +10,7 @@ import pytest
 
 from minid3rqn.rl import commands
 from minid3rqn.rl.evaluate import evaluate_policy, wilson_interval
-from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
+from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only, encode_depth
 from minid3rqn.rl.policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy,
                                    StraightPolicy)
 from minid3rqn.rl.train import TrainConfig, Trainer
@@ -300,6 +300,59 @@ def test_the_camera_must_match_the_depth_model_and_the_q_nets(tmp_path):
                             "--depth", "pred"])
         with pytest.raises(SystemExit, match="trained with the horizon at row 4"):
             commands.run_evaluate(bad)
+
+
+def test_frame_encodings():
+    """Depth: metres / 10 m, clipped. Inverse depth: 0.5 m / metres, clipped to [0.05, 1]
+    (1 at the safety distance and nearer, 0.05 at 10 m and beyond)."""
+    d = np.array([0.0, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 30.0], np.float32)
+    np.testing.assert_allclose(encode_depth(d, "depth"), np.minimum(d, 10) / 10, atol=1e-7)
+    np.testing.assert_allclose(encode_depth(d, "inverse"),
+                               [1, 1, 1, 0.5, 0.25, 0.1, 0.05, 0.05], atol=1e-7)
+    assert encode_depth(d, "inverse").dtype == np.float32
+    with pytest.raises(ValueError, match="encoding must be one of"):
+        encode_depth(d, "disparity")
+    with pytest.raises(ValueError, match="config.encoding must be one of .* got 'log'"):
+        Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, encoding="log"))
+    fl = Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=2, encoding="inverse"))
+    frames = fl.reset()
+    np.testing.assert_array_equal(frames, encode_depth(fl.last_depth, "inverse"))
+    np.testing.assert_array_equal(fl.gt_frames(), frames)
+    res = fl.step(np.zeros(3, np.int64))
+    np.testing.assert_array_equal(res.final_frames, encode_depth(fl.last_depth, "inverse"))
+
+
+def test_the_encoding_travels_with_the_q_net(tmp_path):
+    """train-agent --encoding records it; evaluate takes it from the net; a net is never
+    fed frames of another encoding (fine-tune, ensemble), and old nets read depth."""
+    assert commands.model_encoding({"train_config": {"flights": {"max_depth": 10.0}}}) == "depth"
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    run = tmp_path / "inv"
+    assert commands.run_train_agent(p.parse_args(["--smoke", "--quiet", "--encoding", "inverse",
+                                                  "--out", str(run)])) == 0
+    model = run / "model.npz"
+    assert commands.model_encoding(QNetPolicy.load(model).meta) == "inverse"
+    again = p.parse_args(["--smoke", "--quiet", "--init-model", str(model), "--out",
+                          str(tmp_path / "ft")])
+    assert commands.run_train_agent(again) == 0                # the init model's, by default
+    assert commands.model_encoding(QNetPolicy.load(tmp_path / "ft" / "model.npz").meta) \
+        == "inverse"
+    with pytest.raises(SystemExit, match="trained on 'inverse' frames, but these flights "
+                                         "give 'depth'"):
+        commands.run_train_agent(p.parse_args(["--smoke", "--quiet", "--init-model", str(model),
+                                               "--encoding", "depth", "--out",
+                                               str(tmp_path / "bad")]))
+    e = argparse.ArgumentParser()
+    commands.add_arguments_evaluate(e)
+    ok = e.parse_args([str(model), "--flights", "2", "--steps", "2", "--quiet",
+                       "--json", str(tmp_path / "r.jsonl")])
+    assert commands.run_evaluate(ok) == 0
+    assert json.loads((tmp_path / "r.jsonl").read_text())["encoding"] == "inverse"
+    if SHIPPED.exists():
+        mixed = e.parse_args([f"{model}+{SHIPPED}", "--flights", "2", "--quiet"])
+        with pytest.raises(SystemExit, match="different frame encodings"):
+            commands.run_evaluate(mixed)
 
 
 def test_recorded_result_picks_the_largest_matching_evaluation(tmp_path):

@@ -342,7 +342,7 @@ def run_evaluate(args) -> int:
                 f.write(json.dumps({**res.to_dict(), "spec": spec,
                                     "depth_flip": bool(est is not None and est.flip),
                                     "mirror": bool(args.mirror and spec not in BASELINES),
-                                    "horizon_row": row,
+                                    "horizon_row": row, "encoding": cfg.encoding,
                                     "command": _command_line()}) + "\n")
     return 0
 
