@@ -19,14 +19,15 @@ The Q-nets read ``frames``, depth encoded into [0, 1] (``FlightsConfig.encoding`
     "depth"    (the paper's depth maps)  x = min(d, max_depth) / max_depth
     "inverse"  (ours; inverse depth)     x = near / clip(d, near, max_depth),  near = 0.5 m
 
-Inverse depth spends the input's range near the drone: 1 m and 2 m are 0.5 and 0.25
-apart from 10 m's 0.05, where in depth they are 0.1 and 0.2 against 1.0. A monocular
-depth error of a given fraction is then smaller the farther away it is, as the
-DispNet's errors grow with distance (docs/results.md, "Which depth errors cost
-flights"). After ``max_steps`` actions without a collision a flight is
-*truncated* (a success, not a terminal state). With ``autoreset`` a finished flight
-restarts at once in a new world and start pose, and ``final_frames`` holds the last
-frame of the finished episode (the replay needs it for the bootstrap).
+Inverse depth spends the input's range near the drone: 1 m, 2 m and 10 m read 0.5,
+0.25 and 0.05, where as depth they read 0.1, 0.2 and 1.0; and a depth error of a given
+fraction weighs less the farther away it is. Whether that helps a net on the DispNet's
+depth: docs/results.md, "Which depth errors cost flights".
+
+After ``max_steps`` actions without a collision a flight is *truncated* (a success, not
+a terminal state). With ``autoreset`` a finished flight restarts at once in a new world
+and start pose, and ``final_frames`` holds the last frame of the finished episode (the
+replay needs it for the bootstrap).
 """
 from __future__ import annotations
 
