@@ -145,6 +145,10 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                    help="what the Q-net reads: 'depth' (the paper's depth maps, / 10 m) or "
                         "'inverse' (0.5 m / depth; ours). Default: the --init-model's, else "
                         "depth")
+    p.add_argument("--depth-noise", type=float, default=0.0,
+                   help="training augmentation (ours): std of a smooth random error in log "
+                        "depth put on every frame the Q-net sees (0: none; "
+                        "rl/flights.py, Flights.depth_error)")
     p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
     p.add_argument("--eps-start", type=float, default=d.eps_start)
     p.add_argument("--lr", type=float, default=d.agent.lr, help="Adam step size (paper: 3e-4)")
@@ -181,6 +185,7 @@ def config_from_args(args):
         for k, v in SMOKE.items():
             setattr(cfg, k, v)
         cfg.flights = FlightsConfig(n_worlds=2)
+    cfg.flights.depth_noise = args.depth_noise
     return cfg
 
 

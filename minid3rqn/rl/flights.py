@@ -57,6 +57,8 @@ class FlightsConfig:
                                       # Camera.horizon_row, docs/depth.md section 7)
     encoding: str = "depth"      # ours: what a frame's value is: "depth" or "inverse"
                                  # (inverse depth; the module docstring)
+    depth_noise: float = 0.0     # ours: std of a smooth random error in log depth put on
+                                 # every observed frame (0: none; Flights.depth_error)
 
 
 ENCODINGS = ("depth", "inverse")
@@ -72,6 +74,16 @@ def encode_depth(depth: np.ndarray, encoding: str = "depth", max_depth: float = 
     else:
         raise ValueError(f"encode_depth: encoding must be one of {ENCODINGS}; got {encoding!r}")
     return x.astype(np.float32)
+
+
+def _interpolate_knots(knots: np.ndarray, n: int) -> np.ndarray:
+    """(m, k) values at k evenly spaced knots -> (m, n) linearly interpolated between
+    them at n evenly spaced points (the first and last points on the end knots)."""
+    k = knots.shape[1]
+    x = np.linspace(0.0, k - 1, n)
+    i0 = np.minimum(np.floor(x).astype(np.int64), k - 2)
+    f = x - i0
+    return knots[:, i0] * (1.0 - f) + knots[:, i0 + 1] * f
 
 
 @dataclass
@@ -107,6 +119,11 @@ class Flights:
         if (config or FlightsConfig()).encoding not in ENCODINGS:
             raise ValueError(f"Flights: config.encoding must be one of {ENCODINGS}; got "
                              f"{config.encoding!r}")
+        noise = (config or FlightsConfig()).depth_noise
+        if isinstance(noise, bool) or not isinstance(noise, (int, float, np.floating)) \
+                or not 0.0 <= noise < 1.0:
+            raise ValueError(f"Flights: config.depth_noise (std of the log-depth error) must "
+                             f"be a number in [0, 1); got {noise!r}")
         self.scenario, self.n = scenario, int(n)
         self.cfg = config or FlightsConfig()
         n_worlds = self.cfg.n_worlds
@@ -154,7 +171,30 @@ class Flights:
         else:
             rgb, _ = render_batch(sub, poses, self.camera)
             depth = np.asarray(self.estimator.predict(rgb), dtype=np.float32) * self.cfg.depth_scale
+        if self.cfg.depth_noise > 0:
+            depth = (depth * np.exp(self.depth_error(len(idx)))).astype(np.float32)
         return depth, self.encode(depth), rgb
+
+    def depth_error(self, m: int) -> np.ndarray:
+        """A smooth random error in log depth for ``m`` frames, (m, H, W) (ours; a
+        training-time augmentation, ``FlightsConfig.depth_noise`` = s).
+
+        A DispNet's errors are not pixel noise: whole stretches of a frame are too near
+        or too far together (docs/results.md, "Which depth errors cost flights"). So the
+        error of pixel (row v, column u) is a sum of three smooth parts,
+
+            e(v, u) = a + b(u) + c(v),   a ~ N(0, (s/2)^2),
+
+        b drawn N(0, s^2) at 6 knots across the columns and c at 4 knots down the rows,
+        each linearly interpolated in between; observed depth = depth * exp(e). Drawn
+        afresh for every frame from the flights' generator (so a seed fixes it, and a
+        resumed run draws the same)."""
+        s = self.cfg.depth_noise
+        H, W = self.frame_shape
+        a = self.rng.normal(0.0, s / 2, (m, 1, 1))
+        b = _interpolate_knots(self.rng.normal(0.0, s, (m, 6)), W)[:, None, :]
+        c = _interpolate_knots(self.rng.normal(0.0, s, (m, 4)), H)[:, :, None]
+        return a + b + c
 
     def encode(self, depth: np.ndarray) -> np.ndarray:
         """Depth (metres) -> frames, in this configuration's encoding."""
