@@ -322,6 +322,38 @@ def test_frame_encodings():
     np.testing.assert_array_equal(res.final_frames, encode_depth(fl.last_depth, "inverse"))
 
 
+def test_depth_noise_is_a_smooth_seeded_log_depth_error(tmp_path):
+    """--depth-noise: observed depth = depth * exp(a + b(column) + c(row)), drawn from the
+    flights' generator; off by default, same seed same error, bad values refused, and
+    the training config records it."""
+    cfg = FlightsConfig(n_worlds=2)
+    clean = Flights("basic", 4, seed=3, config=cfg)
+    clean.reset()
+    noisy = [Flights("basic", 4, seed=3, config=FlightsConfig(n_worlds=2, depth_noise=0.15))
+             for _ in range(2)]
+    for fl in noisy:
+        fl.reset()
+    np.testing.assert_array_equal(noisy[0].last_depth, noisy[1].last_depth)
+    e = np.log(noisy[0].last_depth.astype(np.float64) / clean.last_depth)
+    assert 0.05 < e.std() < 0.3
+    # a sum of a row part and a column part: every mixed second difference vanishes
+    mixed = e[:, 1:, 1:] - e[:, 1:, :-1] - e[:, :-1, 1:] + e[:, :-1, :-1]
+    assert np.abs(mixed).max() < 1e-5
+    # smooth along the columns: neighbours differ by much less than the spread
+    assert np.abs(np.diff(e, axis=2)).max() < 0.5 * e.std()
+    assert not np.allclose(e[0], e[1])                 # each frame its own error
+    for bad in (-0.1, 1.0, float("nan"), True, "0.1"):
+        with pytest.raises(ValueError, match="depth_noise"):
+            Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, depth_noise=bad))
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    args = p.parse_args(["--smoke", "--quiet", "--depth-noise", "0.1", "--out",
+                         str(tmp_path / "run")])
+    assert commands.run_train_agent(args) == 0
+    meta = QNetPolicy.load(tmp_path / "run" / "model.npz").meta
+    assert meta["train_config"]["flights"]["depth_noise"] == 0.1
+
+
 def test_the_encoding_travels_with_the_q_net(tmp_path):
     """train-agent --encoding records it; evaluate takes it from the net; a net is never
     fed frames of another encoding (fine-tune, ensemble), and old nets read depth."""
