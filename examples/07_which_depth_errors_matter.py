@@ -16,7 +16,10 @@ DispNet's depth everywhere except in one part, where ground truth is put back:
                               of that frame: its shape, with the right overall scale
 
 If putting back one part recovers most of the gap, the errors there are what cost the
-flights. Each line is the success rate over the same test worlds and start poses
+flights. First it measures the shape of the DispNet's error on frames of these flights:
+e = ln(predicted / true depth), split into a part per frame, a part per column, a part
+per row (each a mean over the rest) and what is left; `train-agent --depth-noise`
+draws errors of the first three kinds. Each line is the success rate over the same test worlds and start poses
 (evaluation seed), with its 95% interval; only what the net sees changes.
 
     python examples/07_which_depth_errors_matter.py [--smoke] [--flights 500] \\
@@ -92,6 +95,35 @@ def scale_fixed(gt, pred, cam):
     return pred * s[:, None, None]
 
 
+def error_structure(pol, est, scenario: str, cfg: FlightsConfig, seed: int, n: int = 64,
+                    steps: int = 20) -> dict:
+    """The DispNet's log-depth error e = ln(pred / GT) on the frames of ``n`` flights of
+    ``steps`` steps flown by the Q-net (both clipped to [0.5 m, 10 m], the range the
+    Q-net reads), split as
+
+        e(f, v, u) = a(f) + b(f, u) + c(f, v) + r(f, v, u):
+
+    a the frame's mean, b the column means of e - a, c the row means of e - a - b, r the
+    rest. Returns the std of e and of each part (pixels weighted alike)."""
+    fl = Flights(scenario, n, seed=seed, config=cfg, depth="pred", depth_estimator=est,
+                 autoreset=True)
+    frames = fl.reset()
+    pol.reset(n)
+    errs = []
+    for _ in range(steps):
+        gt = depth_only(fl.batch, fl.poses, fl.camera)
+        errs.append(np.log(np.clip(fl.last_depth, 0.5, 10.0) / np.clip(gt, 0.5, 10.0)))
+        frames = fl.step(pol.act({"frames": frames, "depth": fl.last_depth})).frames
+    e = np.concatenate(errs)                                   # (F, H, W)
+    a = e.mean(axis=(1, 2), keepdims=True)
+    b = (e - a).mean(axis=1, keepdims=True)
+    c = (e - a - b).mean(axis=2, keepdims=True)
+    r = e - a - b - c
+    return {"total": float(e.std()), "per frame": float(a.std()),
+            "per column": float(b.std()), "per row": float(c.std()),
+            "rest": float(r.std()), "frames": int(len(e))}
+
+
 def views(r: float) -> dict:
     return {"predicted": predicted,
             "GT": ground_truth,
@@ -142,6 +174,12 @@ def main():
     from minid3rqn.nets.qnet import variant_name
     print(f"{VARIANT_NAMES[variant_name(pol.qnet.config)]} {args.qnet} on {args.scenario}, "
           f"DispNet {args.depth_model}; {n} flights, evaluation seed {args.seed}")
+    if not args.smoke:
+        parts = error_structure(pol, est, args.scenario, cfg, args.seed)
+        print("  the DispNet's error in ln(depth) on %d frames: std %.3f; per frame %.3f, "
+              "per column %.3f, per row %.3f, rest %.3f" % (
+                  parts["frames"], parts["total"], parts["per frame"], parts["per column"],
+                  parts["per row"], parts["rest"]), flush=True)
     for name, mix in chosen.items():
         t0 = time.time()
         res = evaluate_policy(pol, args.scenario, n, args.seed, steps, depth="pred",
