@@ -354,6 +354,20 @@ def test_depth_noise_is_a_smooth_seeded_log_depth_error(tmp_path):
     assert meta["train_config"]["flights"]["depth_noise"] == 0.1
 
 
+def test_evaluate_warns_about_a_snapshot_of_an_unfinished_run():
+    """train-agent rewrites model.npz at every checkpoint; evaluating one from a run still
+    in progress is easy to do by mistake, so evaluate says so (and its JSON records it)."""
+    class Net:
+        name = "D3RQN"
+
+        def __init__(self, steps, total):
+            self.meta = {"steps": steps, "train_config": {"total_steps": total}}
+    assert commands.unfinished_warning(Net(240000, 240000)) is None
+    assert commands.unfinished_warning(StraightPolicy()) is None
+    msg = commands.unfinished_warning(Net(160000, 240000))
+    assert "snapshot at 160000 of its run's 240000" in msg
+
+
 def test_the_encoding_travels_with_the_q_net(tmp_path):
     """train-agent --encoding records it; evaluate takes it from the net; a net is never
     fed frames of another encoding (fine-tune, ensemble), and old nets read depth."""

@@ -98,6 +98,18 @@ def encoding_for(command: str, given, policies=()) -> str:
     return enc
 
 
+def unfinished_warning(policy) -> str | None:
+    """A warning if a Q-net file is a snapshot of a training run that had not finished:
+    train-agent rewrites model.npz at every checkpoint, so a run in progress has one."""
+    for m in getattr(policy, "members", [policy]):
+        meta = getattr(m, "meta", None) or {}
+        done, total = meta.get("steps"), (meta.get("train_config") or {}).get("total_steps")
+        if done is not None and total is not None and done < total:
+            return (f"warning: Q-net {m.name!r} is a snapshot at {done} of its run's {total} "
+                    f"transitions (its training had not finished when it was saved)")
+    return None
+
+
 FLIP_HELP = ("depth: average the DispNet's disparity with its disparity on the mirrored "
              "frame (test-time flip; twice the inference cost; docs/depth.md section 7)")
 
@@ -335,6 +347,9 @@ def run_evaluate(args) -> int:
         pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES
                           else None, mirror=args.mirror)
         row = horizon_for("evaluate", args.horizon_row, est, [pol])
+        warning = unfinished_warning(pol)
+        if warning:
+            print(warning, file=sys.stderr, flush=True)
         if isinstance(pol, ReactivePolicy):      # it reads the rows around the horizon
             pol.horizon_row = row
         cfg = FlightsConfig(horizon_row=row, encoding=encoding_for("evaluate", None, [pol]))
@@ -348,6 +363,7 @@ def run_evaluate(args) -> int:
                                     "depth_flip": bool(est is not None and est.flip),
                                     "mirror": bool(args.mirror and spec not in BASELINES),
                                     "horizon_row": row, "encoding": cfg.encoding,
+                                    "unfinished": warning is not None,
                                     "command": _command_line()}) + "\n")
     return 0
 
