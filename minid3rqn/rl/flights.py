@@ -116,16 +116,16 @@ class Flights:
                              "with predict(rgb uint8 (N, H, W, 3)) -> depth (N, H, W))")
         if n < 1:
             raise ValueError(f"Flights: n must be >= 1; got {n}")
-        if (config or FlightsConfig()).encoding not in ENCODINGS:
+        self.scenario, self.n = scenario, int(n)
+        self.cfg = config or FlightsConfig()
+        if self.cfg.encoding not in ENCODINGS:
             raise ValueError(f"Flights: config.encoding must be one of {ENCODINGS}; got "
-                             f"{config.encoding!r}")
-        noise = (config or FlightsConfig()).depth_noise
+                             f"{self.cfg.encoding!r}")
+        noise = self.cfg.depth_noise
         if isinstance(noise, bool) or not isinstance(noise, (int, float, np.floating)) \
                 or not 0.0 <= noise < 1.0:
             raise ValueError(f"Flights: config.depth_noise (std of the log-depth error) must "
                              f"be a number in [0, 1); got {noise!r}")
-        self.scenario, self.n = scenario, int(n)
-        self.cfg = config or FlightsConfig()
         n_worlds = self.cfg.n_worlds
         if isinstance(n_worlds, bool) or not isinstance(n_worlds, (int, np.integer)) \
                 or n_worlds < 1:
