@@ -30,6 +30,7 @@ Ground truth is used only to build the views flown here; nothing is trained.
 import argparse
 import json
 import time
+from dataclasses import asdict
 from functools import partial
 from pathlib import Path
 
@@ -98,13 +99,14 @@ def scale_fixed(gt, pred, cam):
 def error_structure(pol, est, scenario: str, cfg: FlightsConfig, seed: int, n: int = 64,
                     steps: int = 20) -> dict:
     """The DispNet's log-depth error e = ln(pred / GT) on the frames of ``n`` flights of
-    ``steps`` steps flown by the Q-net (both clipped to [0.5 m, 10 m], the range the
+    ``steps`` steps flown by the Q-net in test worlds (both clipped to [0.5 m, 10 m], the range the
     Q-net reads), split as
 
         e(f, v, u) = a(f) + b(f, u) + c(f, v) + r(f, v, u):
 
     a the frame's mean, b the column means of e - a, c the row means of e - a - b, r the
     rest. Returns the std of e and of each part (pixels weighted alike)."""
+    cfg = FlightsConfig(**{**asdict(cfg), "test_worlds": True})     # fresh worlds
     fl = Flights(scenario, n, seed=seed, config=cfg, depth="pred", depth_estimator=est,
                  autoreset=True)
     frames = fl.reset()
@@ -174,12 +176,12 @@ def main():
     from minid3rqn.nets.qnet import variant_name
     print(f"{VARIANT_NAMES[variant_name(pol.qnet.config)]} {args.qnet} on {args.scenario}, "
           f"DispNet {args.depth_model}; {n} flights, evaluation seed {args.seed}")
-    if not args.smoke:
-        parts = error_structure(pol, est, args.scenario, cfg, args.seed)
-        print("  the DispNet's error in ln(depth) on %d frames: std %.3f; per frame %.3f, "
-              "per column %.3f, per row %.3f, rest %.3f" % (
-                  parts["frames"], parts["total"], parts["per frame"], parts["per column"],
-                  parts["per row"], parts["rest"]), flush=True)
+    parts = error_structure(pol, est, args.scenario, cfg, args.seed,
+                            *((4, 2) if args.smoke else ()))
+    print("  the DispNet's error in ln(depth) on %d frames: std %.3f; per frame %.3f, "
+          "per column %.3f, per row %.3f, rest %.3f" % (
+              parts["frames"], parts["total"], parts["per frame"], parts["per column"],
+              parts["per row"], parts["rest"]), flush=True)
     for name, mix in chosen.items():
         t0 = time.time()
         res = evaluate_policy(pol, args.scenario, n, args.seed, steps, depth="pred",
