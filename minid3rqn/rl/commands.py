@@ -38,9 +38,19 @@ def load_depth_estimator(path, flip: bool = False):
 HORIZON_DEFAULT = "the depth model's, else the Q-nets', else the middle row"
 
 
+def _trained_flights(meta: dict | None) -> dict:
+    """The FlightsConfig a Q-net was trained with, as saved in its file ({} if none)."""
+    return ((meta or {}).get("train_config") or {}).get("flights") or {}
+
+
+def _q_nets(policies) -> list:
+    """The Q-net policies in ``policies`` (an ensemble's members; baselines left out)."""
+    return [m for p in policies for m in getattr(p, "members", [p]) if hasattr(m, "qnet")]
+
+
 def model_horizon(meta: dict | None) -> float | None:
     """The horizon row a Q-net was trained with (None: the default camera)."""
-    return (((meta or {}).get("train_config") or {}).get("flights") or {}).get("horizon_row")
+    return _trained_flights(meta).get("horizon_row")
 
 
 def horizon_for(command: str, given, est, policies=()) -> float | None:
@@ -51,7 +61,7 @@ def horizon_for(command: str, given, est, policies=()) -> float | None:
     from ..depth.commands import camera_or_exit
     from ..world import Camera
     default = Camera().cy
-    nets = [m for p in policies for m in getattr(p, "members", [p]) if hasattr(m, "qnet")]
+    nets = _q_nets(policies)
     row = given
     if row is None and est is not None:
         row = est.horizon_row
@@ -74,8 +84,7 @@ def horizon_for(command: str, given, est, policies=()) -> float | None:
 
 def model_encoding(meta: dict | None) -> str:
     """The frame encoding a Q-net was trained with ("depth" for nets from before it)."""
-    return (((meta or {}).get("train_config") or {}).get("flights") or {}).get("encoding",
-                                                                                "depth")
+    return _trained_flights(meta).get("encoding", "depth")
 
 
 def encoding_for(command: str, given, policies=()) -> str:
@@ -83,7 +92,7 @@ def encoding_for(command: str, given, policies=()) -> str:
     (train-agent's ``--encoding``) if not None, else the Q-nets'. Every Q-net must have
     been trained with it: a net fed inverse depth where it learned depth reads a wall
     ahead as open space."""
-    nets = [m for p in policies for m in getattr(p, "members", [p]) if hasattr(m, "qnet")]
+    nets = _q_nets(policies)
     found = {model_encoding(getattr(m, "meta", None)) for m in nets}
     if given is None and len(found) > 1:
         raise SystemExit(f"{command}: these Q-nets were trained on different frame "
