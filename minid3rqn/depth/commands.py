@@ -69,6 +69,15 @@ def add_arguments_collect(p: argparse.ArgumentParser) -> None:
                         "drawn per flight; moves the focus of expansion off the image "
                         "centre (0: the camera looks where the drone flies)")
     add_argument_horizon_row(p)
+    p.add_argument("--pilot", default=None,
+                   help="fly a trained Q-net (.npz) instead of the scripted pilot (ours): "
+                        "frames of the states the Q-net itself visits (rl/flown_frames.py)")
+    p.add_argument("--pilot-epsilon", type=float, default=0.0,
+                   help="--pilot: probability of a random action at each step")
+    p.add_argument("--pilot-depth", default="pred", choices=["pred", "gt"],
+                   help="--pilot: what the Q-net reads (pred: the DispNet's depth, as deployed)")
+    p.add_argument("--pilot-depth-model", default=None,
+                   help="--pilot: the DispNet it reads (default: the shipped one of the scenario)")
 
 
 def add_argument_horizon_row(p: argparse.ArgumentParser,
@@ -99,6 +108,8 @@ def run_collect(args) -> int:
     from .data import collect, save_sequence
     out = Path(args.out or RUNS / args.scenario / "train.npz")
     t0 = time.time()
+    if args.pilot:
+        return _run_collect_flown(args, out, t0)
     data = collect(args.scenario, args.frames, args.frames_per_flight, args.seed,
                    camera=camera_from_args(args, "collect"),
                    late=args.late_turns, frame_dt=args.frame_dt, crab_deg=args.crab_deg)
@@ -107,6 +118,44 @@ def run_collect(args) -> int:
                               "command": _command_line(args, "collect")})
     print(f"collect: {len(data['rgb'])} frames in {int(data['flight'].max()) + 1} flights "
           f"-> {out} ({time.time() - t0:.1f} s)")
+    return 0
+
+
+def _run_collect_flown(args, out: Path, t0: float) -> int:
+    """``collect --pilot QNET``: the frames of a Q-net's own flights."""
+    from ..rl.commands import _estimator_for, encoding_for, horizon_for
+    from ..rl.flown_frames import collect_flown
+    from ..rl.policies import QNetPolicy
+    from .data import save_sequence
+    for name, value, default in (("--late-turns", args.late_turns, 0.0),
+                                 ("--frame-dt", args.frame_dt, 0.4),
+                                 ("--crab-deg", args.crab_deg, 0.0)):
+        if value != default:
+            raise SystemExit(f"collect: {name} is the scripted pilot's; with --pilot the "
+                             f"Q-net flies (one frame per action, 0.4 s); got {name} {value}")
+    if not 0.0 <= args.pilot_epsilon <= 1.0:
+        raise SystemExit(f"collect --pilot-epsilon: expected a probability in [0, 1]; "
+                         f"got {args.pilot_epsilon}")
+    if args.frames_per_flight < 3:
+        raise SystemExit(f"collect --frames-per-flight: expected >= 3; got "
+                         f"{args.frames_per_flight}")
+    if not Path(args.pilot).is_file():
+        raise SystemExit(f"collect --pilot: no Q-net file {args.pilot!r}")
+    policy = QNetPolicy.load(args.pilot, "pilot")
+    policy.epsilon = args.pilot_epsilon
+    est = _estimator_for(args.pilot_depth, args.pilot_depth_model, args.scenario)
+    horizon = horizon_for("collect", args.horizon_row, est, [policy])
+    camera = camera_or_exit("collect", horizon)
+    data = collect_flown(policy, args.scenario, args.frames, args.seed, depth=args.pilot_depth,
+                         depth_estimator=est, camera=camera,
+                         max_steps=args.frames_per_flight - 1,
+                         encoding=encoding_for("collect", None, [policy]))
+    save_sequence(out, data, {"scenario": args.scenario, "seed": args.seed,
+                              "pilot": str(args.pilot), "pilot_epsilon": args.pilot_epsilon,
+                              "pilot_depth": args.pilot_depth,
+                              "command": _command_line(args, "collect")})
+    print(f"collect: {len(data['rgb'])} frames in {int(data['flight'].max()) + 1} flights "
+          f"of {args.pilot} -> {out} ({time.time() - t0:.1f} s)")
     return 0
 
 
