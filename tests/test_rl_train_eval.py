@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from minid3rqn.nets.qnet import QNetConfig
 from minid3rqn.rl import commands
 from minid3rqn.rl.evaluate import evaluate_policy, wilson_interval
 from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only, encode_depth
@@ -413,3 +414,20 @@ def test_recorded_result_picks_the_largest_matching_evaluation(tmp_path):
     assert commands.recorded_result(model, "basic", "pred")["rate"] == 0.7
     assert commands.recorded_result(model, "corners", "pred") is None
     assert commands.recorded_result(tmp_path / "none.npz", "basic", "gt") is None
+
+
+def test_conv_channels_widen_the_torso_and_are_checked(tmp_path):
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    args = p.parse_args(["--smoke", "--quiet", "--conv-channels", "6,5,3",
+                         "--out", str(tmp_path / "run")])
+    assert commands.run_train_agent(args) == 0
+    pol = QNetPolicy.load(tmp_path / "run" / "model.npz")
+    default = QNetConfig().convs
+    assert [c[0] for c in pol.qnet.config.convs] == [6, 5, 3]
+    assert [c[1:] for c in pol.qnet.config.convs] == [c[1:] for c in default]
+    for bad in ("6,5", "6,x,3", "6,0,3"):
+        args = p.parse_args(["--smoke", "--quiet", "--conv-channels", bad,
+                             "--out", str(tmp_path / "bad")])
+        with pytest.raises(SystemExit, match="--conv-channels"):
+            commands.run_train_agent(args)

@@ -156,6 +156,9 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--eps-decay", type=int, default=d.eps_decay_steps)
     p.add_argument("--replay", type=int, default=d.replay_capacity)
     p.add_argument("--hidden", type=int, default=d.hidden)
+    p.add_argument("--conv-channels", default=None,
+                   help="out channels of the three conv layers, e.g. 16,32,32 (ours; "
+                        "default 4,8,8: nets/qnet.py)")
     p.add_argument("--worlds", type=int, default=d.flights.n_worlds,
                    help="scenes in the training pool (each flight starts in one of them)")
     p.add_argument("--depth", default=d.depth, choices=["gt", "pred"])
@@ -199,6 +202,16 @@ def config_from_args(args):
                       init_model=args.init_model, eps_start=args.eps_start,
                       teachers=args.teachers, teacher_mix=args.teacher_mix,
                       teacher_mix_steps=args.teacher_mix_steps)
+    if args.conv_channels is not None:
+        try:
+            cfg.conv_channels = [int(c) for c in str(args.conv_channels).split(",")]
+        except ValueError:
+            raise SystemExit(f"train-agent --conv-channels: expected ints joined by ',' "
+                             f"(e.g. 16,32,32); got {args.conv_channels!r}")
+        try:
+            cfg.qnet_config(5, (32, 104))
+        except ValueError as e:
+            raise SystemExit(f"train-agent --conv-channels: {e}")
     cfg.agent.lr = args.lr
     cfg.flights.n_worlds = args.worlds
     if args.smoke:

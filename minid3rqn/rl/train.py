@@ -48,6 +48,8 @@ class TrainConfig:
     eps_end: float = 0.05          # ours
     eps_decay_steps: int = 50_000  # ours: transitions for the linear decay
     hidden: int = 128              # ours: LSTM / FC width
+    conv_channels: list | None = None  # ours: out channels of the conv layers (None: the
+                                       # QNetConfig's 4, 8, 8; kernels and strides stay)
     depth: str = "gt"              # gt | pred (the DispNet's depth maps)
     log_every: int = 2_000         # transitions between learning-curve rows
     checkpoint_every: int = 10_000  # transitions between checkpoints
@@ -66,9 +68,19 @@ class TrainConfig:
             self.flights = FlightsConfig(**self.flights)
 
     def qnet_config(self, n_actions: int, frame_shape) -> QNetConfig:
+        extra = {}
+        if self.conv_channels is not None:
+            convs = QNetConfig().convs
+            chans = list(self.conv_channels)
+            if len(chans) != len(convs) or not all(
+                    isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 1
+                    for c in chans):
+                raise ValueError(f"TrainConfig: conv_channels must be {len(convs)} ints >= 1 "
+                                 f"(one per conv layer); got {self.conv_channels!r}")
+            extra["convs"] = [[int(c), k, s] for c, (_, k, s) in zip(chans, convs)]
         return QNetConfig.for_variant(self.variant, in_channels=self.stack,
                                       height=frame_shape[0], width_px=frame_shape[1],
-                                      n_actions=n_actions, width=self.hidden)
+                                      n_actions=n_actions, width=self.hidden, **extra)
 
     def to_dict(self) -> dict:
         return asdict(self)
