@@ -36,12 +36,13 @@ def failed_with(report, *phrases):
 
 # -- every exercise: files exist, solution passes, template fails where a change is asked --
 def test_registry_files_exist():
-    assert len(EXERCISES) == 7
+    assert len(EXERCISES) == 8
     for ex in EXERCISES.values():
         assert (TEMPLATES / ex.filename).is_file(), ex.filename
         assert (SOLUTIONS / ex.filename).is_file(), ex.filename
         assert (ROOT / ex.doc).is_file(), ex.doc
     assert find("1").name == "reward" and find("depth_loss").name == "depth-loss"
+    assert find("8").name == "depth-errors" and find("depth_errors").name == "depth-errors"
     with pytest.raises(ValueError, match="choose one of"):
         find("nope")
 
@@ -292,6 +293,162 @@ def test_photometric_other_alpha(tmp_path):
     assert report.passed and abs(report.summary["alpha"] - 0.5) < 1e-6
 
 
+# -- 8. depth errors -------------------------------------------------------------------
+def test_depth_errors_template_is_the_papers_setting():
+    report = checks.check_depth_errors(TEMPLATES / "depth_errors.py")
+    assert report.passed, report.text()
+    assert "leaves the depth as it is" in report.messages
+    assert report.summary["log_error"]["total"] == 0.0
+
+
+def test_depth_errors_solution_compares_with_the_dispnet():
+    report = checks.check_depth_errors(SOLUTIONS / "depth_errors.py")
+    assert report.passed, report.text()
+    assert "DispNet" in report.messages and "per column" in report.messages
+    parts = report.summary["log_error"]
+    assert 0.08 < parts["total"] < 0.25 and parts["per column"] > parts["per row"], parts
+    assert "too strong" not in report.messages
+
+
+@pytest.mark.parametrize("body, phrases", [
+    ("return depth[0]", ["input's shape (32, 32, 104)", "got shape (32, 104)"]),
+    ("return depth + rng.normal(0.0, 3.0, depth.shape)", ["<= 0", "depth * np.exp(e)"]),
+    ("return np.round(depth).astype(int) + 1", ["floating-point", "int64"]),
+    ("return depth * np.exp(0.1 * (depth - depth.mean()) / depth.std())",
+     ["non-finite", "30 m away"]),
+    ("depth *= np.float32(1.1)\n    return depth", ["in place", "depth.copy()"]),
+    ("depth[:, :, :10] = 1.0\n    return depth * 1.0", ["in place"]),
+    ("return depth * np.exp(np.random.normal(0.0, 0.1, depth.shape))",
+     ["global random generator", "rng.normal"]),
+    ("return depth * np.exp(np.random.default_rng().normal(0.0, 0.1, depth.shape))",
+     ["same rng seed gave a different", "from `rng` only"]),
+    ("return None", ["returned None", "return"]),
+])
+def test_depth_errors_broken(tmp_path, body, phrases):
+    path = write(tmp_path, "depth_errors.py",
+                 f"import numpy as np\n\n\ndef corrupt(depth, rng):\n    {body}\n")
+    with np.errstate(all="ignore"):
+        report = checks.check_depth_errors(path)
+    failed_with(report, *phrases)
+    assert "Hint:" in report.messages
+
+
+def test_depth_errors_notes_a_strong_or_fixed_error(tmp_path):
+    strong = write(tmp_path, "strong.py", """
+        import numpy as np
+        def corrupt(depth, rng):
+            return depth * np.exp(rng.normal(0.0, 0.8, depth.shape))
+        """)
+    report = checks.check_depth_errors(strong)
+    assert report.passed and "too strong" in report.messages, report.text()
+    fixed = write(tmp_path, "fixed.py", """
+        def corrupt(depth, rng):
+            return depth * 0.8
+        """)
+    report = checks.check_depth_errors(fixed)
+    assert report.passed and "fixed distortion" in report.messages, report.text()
+
+
+def test_depth_errors_wrong_signature(tmp_path):
+    path = write(tmp_path, "depth_errors.py", "def corrupt(depth):\n    return depth\n")
+    failed_with(checks.check_depth_errors(path), "corrupt must take (depth, rng)")
+
+
+def test_log_error_parts_splits_the_error():
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(1.0, 8.0, (400, 32, 104))
+    per_frame = depth * np.exp(rng.normal(0.0, 0.1, (400, 1, 1)))
+    parts = checks.log_error_parts(depth, np.clip(per_frame, 0.5, 10.0))
+    assert parts["per column"] < 0.02 and parts["per row"] < 0.02 and parts["rest"] < 0.02
+    per_column = depth * np.exp(rng.normal(0.0, 0.1, (400, 1, 104)))
+    parts = checks.log_error_parts(depth, np.clip(per_column, 0.5, 10.0))
+    assert parts["per column"] > 5 * max(parts["per row"], parts["rest"]), parts
+
+
+def test_depth_fn_applies_in_training_flights_only():
+    import importlib
+    from minid3rqn.classroom.flights import ClassroomFlights
+    from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
+    tr, ev = (importlib.import_module(f"minid3rqn.rl.{m}") for m in ("train", "evaluate"))
+    cfg = FlightsConfig(n_worlds=2)
+
+    def double(depth, rng):
+        return depth * 2.0
+
+    with adapters.classroom_flights(depth_fn=double):
+        fl = tr.Flights("basic", 3, seed=0, config=cfg)
+    frames = fl.reset()
+    gt = depth_only(fl.batch, fl.poses, fl.camera)
+    np.testing.assert_allclose(fl.last_depth, 2.0 * gt, rtol=1e-6)
+    np.testing.assert_allclose(frames, fl.encode(2.0 * gt), atol=1e-6)
+    res = fl.step(np.zeros(3, np.int64))
+    gt = depth_only(fl.batch, fl.poses, fl.camera)
+    np.testing.assert_allclose(res.frames, fl.encode(2.0 * gt), atol=1e-6)
+    # the same seed flies the same worlds and start poses as the library's flights
+    plain, noisy = Flights("basic", 3, seed=0, config=cfg), ClassroomFlights(
+        "basic", 3, seed=0, config=cfg, depth_fn=lambda d, rng: d * rng.uniform(0.5, 2.0))
+    plain.reset(), noisy.reset()
+    assert np.array_equal(plain.world_seeds, noisy.world_seeds)
+    np.testing.assert_array_equal(plain.poses, noisy.poses)
+    assert not np.allclose(plain.last_depth, noisy.last_depth)
+    # flights made without depth_fn (the runner's test flights) see the depth as it is
+    with adapters.classroom_flights():
+        clean = ev.Flights("basic", 3, seed=0, config=cfg)
+    assert isinstance(clean, ClassroomFlights) and clean.depth_fn is None
+    clean.reset()
+    np.testing.assert_array_equal(clean.last_depth,
+                                  depth_only(clean.batch, clean.poses, clean.camera))
+    # a corruption that breaks the depth is stopped with a clear message
+    with adapters.classroom_flights(depth_fn=lambda d, rng: -d):
+        bad = tr.Flights("basic", 2, seed=0, config=cfg)
+    with pytest.raises(ValueError, match="positive finite"):
+        bad.reset()
+
+
+def test_run_depth_errors_smoke(tmp_path, monkeypatch):
+    """Training sees the corruption, the test flights (GT and predicted) never do, and
+    the result holds both success rates."""
+    import importlib
+    from minid3rqn.classroom.loader import load_student_module
+    from minid3rqn.classroom.report import Report
+    from minid3rqn.classroom.runner import run_agent_exercise
+    module = load_student_module(SOLUTIONS / "depth_errors.py", Report("8"))
+    calls = {"train": 0, "test": 0}
+    testing = [False]
+    solution = module.corrupt
+
+    def spy(depth, rng):
+        assert depth.ndim == 3 and depth.shape[1:] == (32, 104)
+        calls["test" if testing[0] else "train"] += 1
+        return solution(depth, rng)
+
+    module.corrupt = spy
+    ev = importlib.import_module("minid3rqn.rl.evaluate")
+    evaluate = ev.evaluate_policy
+    depths = []
+
+    def watched(*args, **kwargs):
+        testing[0] = True
+        depths.append(kwargs.get("depth", "gt"))
+        try:
+            return evaluate(*args, **kwargs)
+        finally:
+            testing[0] = False
+
+    monkeypatch.setattr(ev, "evaluate_policy", watched)
+    res = run_agent_exercise(EXERCISES["depth-errors"], module, budget="smoke", out=tmp_path,
+                             progress=False)
+    assert calls["train"] > 0 and calls["test"] == 0, calls
+    assert depths == ["gt", "pred"]
+    assert 0.0 <= res["success"] <= 1.0 and 0.0 <= res["pred_success"] <= 1.0
+    assert res["pred_mean_steps"] > 0 and res["depth_model"].endswith("depth_basic.npz")
+    saved = json.loads((tmp_path / "depth-errors" / res["tag"] / "result.json").read_text())
+    assert saved["pred_ci"] == res["pred_ci"]
+    from minid3rqn.classroom.runner import summary_table
+    table = summary_table("depth-errors", tmp_path)
+    assert "on predicted depth" in table and res["tag"] in table
+
+
 # -- adapters: the change reaches training ---------------------------------------------
 def test_classroom_flights_pays_the_students_reward():
     from minid3rqn.rl.flights import FlightsConfig
@@ -366,7 +523,7 @@ def test_check_command(capsys):
     assert run_check(ns(exercise="reward", file=str(TEMPLATES / "reward.py"), solutions=False)) == 1
     assert "NOT YET" in capsys.readouterr().out
     assert run_check(ns(exercise="all", file=None, solutions=True)) == 0
-    assert "7/7 exercises pass" in capsys.readouterr().out
+    assert "8/8 exercises pass" in capsys.readouterr().out
 
 
 def test_warp_picture_tells_the_truth(tmp_path):

@@ -1,6 +1,6 @@
 """Classroom exercises: checkers for a student's change, and a runner that trains with it.
 
-Seven exercises (docs/exercises/README.md), each with one file to edit in
+Eight exercises (docs/exercises/README.md), each with one file to edit in
 ``exercises/`` at the repository root, a checker and a classroom-budget run:
 
     python -m minid3rqn check <exercise> [--file path]

@@ -1,14 +1,17 @@
 """Thin adapters that plug a student's change into the library's training code.
 
 The exercises change one thing at a time: the reward, the action table, the camera, the
-TD target, the photometric error. The library takes some of these as arguments
-(``DroneEnv(actions=..., reward_fn=...)``, ``Flights(camera=..., actions=...)``) but
-its training and evaluation loops build their flights themselves. The adapters below
-swap, for the duration of a ``with`` block only, the one name that the loop looks up:
+TD target, the photometric error, the depth seen in training. The library takes some of
+these as arguments (``DroneEnv(actions=..., reward_fn=...)``, ``Flights(camera=...,
+actions=...)``) but its training and evaluation loops build their flights themselves.
+The adapters below swap, for the duration of a ``with`` block only, the one name that
+the loop looks up:
 
     with classroom_flights(actions=table, camera=cam, reward_fn=reward):
         Trainer(cfg, out).run()               # rl.train builds ClassroomFlights
         evaluate_policy(policy, ...)          # and so does rl.evaluate
+    with classroom_flights(depth_fn=corrupt): # around training only: the test flights
+        Trainer(cfg, out).run()               # must see the depth as it is
     with td_target(my_target):                # rl.agent's double-Q target -> yours
         ...
     with photometric_error(my_error):         # depth.losses' photometric error -> yours
@@ -60,9 +63,14 @@ def call_reward(reward_fn, d_nearest, collided, yaw_rate):
 
 
 @contextlib.contextmanager
-def classroom_flights(actions=None, camera=None, reward_fn=None):
+def classroom_flights(actions=None, camera=None, reward_fn=None, depth_fn=None):
     """Inside the block, training (rl.train) and evaluation (rl.evaluate) fly
-    ``ClassroomFlights`` with these actions, camera and reward (None: the library's)."""
+    ``ClassroomFlights`` with these actions, camera and reward (None: the library's).
+
+    ``depth_fn(depth, rng) -> depth`` (exercise 8) corrupts every depth map the flights
+    observe, before it is encoded for the Q-net. It is meant for training only: put
+    the training alone inside a block with ``depth_fn``, and evaluate outside it (or in
+    a block without it), as ``runner.run_agent_exercise`` does."""
 
     from .flights import ClassroomFlights
 
@@ -71,7 +79,7 @@ def classroom_flights(actions=None, camera=None, reward_fn=None):
             kwargs.setdefault("actions", np.asarray(actions, dtype=np.float64))
         if camera is not None:
             kwargs.setdefault("camera", camera)
-        return ClassroomFlights(*args, reward_fn=reward_fn, **kwargs)
+        return ClassroomFlights(*args, reward_fn=reward_fn, depth_fn=depth_fn, **kwargs)
 
     with contextlib.ExitStack() as stack:
         for module in ("minid3rqn.rl.train", "minid3rqn.rl.evaluate"):

@@ -625,3 +625,213 @@ def check_photometric(path) -> Report:
              f"disparity)")
 
     return _run(Report("7 (depth loss)", path), path, body)
+
+
+# =====================================================================================
+# Exercise 8: errors in the depth seen in training
+# =====================================================================================
+# The DispNet's error e = ln(predicted / GT depth) as measured on 1280 frames of test
+# flights (docs/results.md, "Two ways to make a GT-trained net robust to those errors"),
+# split as ``log_error_parts`` splits a student's.
+DISPNET_LOG_ERROR = {"total": 0.146, "per frame": 0.044, "per column": 0.103,
+                     "per row": 0.038, "rest": 0.086}
+RESULTS_SECTION = '"Two ways to make a GT-trained net robust to those errors"'
+TOO_STRONG = 0.5          # std of the log-depth error above which the checker warns
+Q_NET_RANGE = (0.5, 10.0)  # metres: the depth range the Q-net reads (examples/07 clips to it)
+
+
+def log_error_parts(depth, corrupted, clip=Q_NET_RANGE) -> dict:
+    """The log-depth error e = ln(corrupted / depth) of frames (F, H, W), split as
+
+        e(f, v, u) = a(f) + b(f, u) + c(f, v) + r(f, v, u):
+
+    a the frame's mean, b the column means of e - a, c the row means of e - a - b, and
+    r the rest. Returns the std of e and of each part (pixels weighted alike), and the
+    mean of e. Both depths are clipped to ``clip`` (0.5 to 10 m, the range the Q-net
+    reads) first: the split and the clip of the DispNet's measured error
+    (``error_structure`` in examples/07_which_depth_errors_matter.py)."""
+    lo, hi = clip
+    e = np.log(np.clip(np.asarray(corrupted, np.float64), lo, hi) /
+               np.clip(np.asarray(depth, np.float64), lo, hi))
+    a = e.mean(axis=(1, 2), keepdims=True)
+    b = (e - a).mean(axis=1, keepdims=True)
+    c = (e - a - b).mean(axis=2, keepdims=True)
+    rest = e - a - b - c
+    return {"total": float(e.std()), "per frame": float(a.std()),
+            "per column": float(b.std()), "per row": float(c.std()),
+            "rest": float(rest.std()), "mean": float(e.mean())}
+
+
+def _gt_frames(flights: int = 8, steps: int = 3, seed: int = 0) -> np.ndarray:
+    """GT depth maps (metres, float32 (flights * (steps + 1), 32, 104)) of a few training
+    flights: their first views, then after each of ``steps`` random actions."""
+    from ..rl.flights import Flights
+    fl = Flights("basic", flights, seed=seed, config=_small_pool())
+    fl.reset()
+    out = [fl.last_depth.copy()]
+    rng = np.random.default_rng(seed)
+    for _ in range(steps):
+        fl.step(rng.integers(fl.n_actions, size=flights))
+        out.append(fl.last_depth.copy())
+    return np.concatenate(out)
+
+
+def _as_depths(report: Report, value, like: np.ndarray, what: str) -> np.ndarray:
+    """``value`` as an array of positive finite float depths of ``like``'s shape; else
+    record a failure naming what was expected and what came, and Stop."""
+    if value is None:
+        report.fail(f"{what} returned None; expected an array of shape {like.shape}",
+                    hint="did you forget the `return`? The template ends with `return depth`",
+                    stop=True)
+    arr = np.asarray(value)
+    if arr.shape != like.shape:
+        report.fail(f"{what} must return an array of the input's shape {like.shape} (frames, "
+                    f"rows, columns); got shape {arr.shape}",
+                    hint="return one depth per pixel of every frame; to draw one number per "
+                         "frame, draw shape (n, 1, 1) and let NumPy broadcast, e.g. "
+                         "depth * np.exp(rng.normal(0.0, 0.05, (len(depth), 1, 1)))", stop=True)
+    if arr.dtype.kind != "f":
+        report.fail(f"{what} must return floating-point depths (metres) like its input "
+                    f"({like.dtype}); got dtype {arr.dtype}",
+                    hint="do not round or cast the depths to integers or booleans", stop=True)
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        k = tuple(int(i) for i in np.argwhere(bad)[0])
+        report.fail(f"{what} returned {int(bad.sum())} non-finite depth(s) (nan or inf), e.g. "
+                    f"{arr[k]} at (frame, row, column) {k}, where the input is "
+                    f"{float(like[k]):.3g} m; every depth must be a finite number",
+                    hint="look for a division by zero (a frame's std is 0 when its depth is "
+                         "constant) or a log of 0 or of a negative number", stop=True)
+    low = arr <= 0
+    if low.any():
+        k = tuple(int(i) for i in np.argwhere(low)[0])
+        report.fail(f"{what} returned {int(low.sum())} depth(s) <= 0, e.g. {float(arr[k]):.3g} m "
+                    f"at (frame, row, column) {k}, where the input is {float(like[k]):.3g} m; "
+                    f"every depth must be > 0",
+                    hint="an added error (depth + e) can cross zero near the drone: multiply "
+                         "instead, depth * np.exp(e) (an error in log depth), which is "
+                         "positive for any e", stop=True)
+    return arr
+
+
+def _global_random_state():
+    import random
+    kind, keys, pos, has_gauss, gauss = np.random.get_state()
+    return (keys.tobytes(), pos, has_gauss, gauss), random.getstate()
+
+
+def check_depth_errors(path) -> Report:
+    def body(m, r):
+        fn = get_callable(m, "corrupt", r, path)
+        try:
+            params = list(inspect.signature(fn).parameters.values())
+        except (TypeError, ValueError):
+            params = None
+        if params is not None:
+            positional = [p for p in params
+                          if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+            if len(positional) < 2 and not any(p.kind == p.VAR_POSITIONAL for p in params):
+                r.fail(f"corrupt must take (depth, rng); yours takes "
+                       f"({', '.join(p.name for p in params)})",
+                       hint="keep the template's signature: def corrupt(depth, rng)", stop=True)
+
+        # real GT frames of a few training flights
+        depth = _gt_frames()
+        n, H, W = depth.shape
+        x = depth.copy()
+        before = _global_random_state()
+        what = f"corrupt(depth of shape {depth.shape}, rng)"
+        out = _call(r, path, what, fn, x, np.random.default_rng(0))
+        used_global = _global_random_state() != before
+        y = _as_depths(r, out, depth, what)
+        r.ok(f"{n} GT depth maps of {H}x{W} from a few training flights -> positive, finite "
+             f"depths of the same shape")
+        in_place = not np.array_equal(x, depth)
+        if in_place:
+            r.fail("corrupt changed its input `depth` in place; it must leave it as it is "
+                   "and return a new array",
+                   hint="write `depth = depth * np.exp(e)`, not `depth *= np.exp(e)`, and do "
+                        "not assign into depth[...]; or start from `out = depth.copy()`")
+        else:
+            r.ok("the input `depth` is left as it was (not modified in place)")
+
+        # the same seed must give the same corruption: draw only from rng
+        y2 = np.asarray(_call(r, path, what + " a second time, same seed", fn, depth.copy(),
+                              np.random.default_rng(0)))
+        if used_global:
+            r.fail("corrupt draws from NumPy's or Python's global random generator "
+                   "(np.random.normal, np.random.rand, random.random ...): the library's "
+                   "seed cannot fix those draws",
+                   hint="draw every random number from the `rng` argument: rng.normal(...), "
+                        "rng.uniform(...), rng.integers(...)")
+        elif y2.shape != y.shape or not np.array_equal(y, y2):
+            diff = float(np.max(np.abs(y2 - y))) if y2.shape == y.shape else float("nan")
+            r.fail(f"the same rng seed gave a different corruption the second time (largest "
+                   f"difference {diff:.3g} m): corrupt must draw its random numbers from "
+                   f"`rng` only, so that the library's seed fixes the run",
+                   hint="use rng.normal(...), rng.uniform(...) ...; do not make a generator "
+                        "of your own inside corrupt (np.random.default_rng())")
+        else:
+            r.ok("the same rng seed gives the same corruption")
+
+        # edge cases: one frame, everything near, everything far
+        cases = [("a single frame, shape (1, 32, 104)", depth[:1].copy()),
+                 ("a frame where everything is 0.4 m away (near)",
+                  np.full((1, H, W), 0.4, np.float32)),
+                 ("a frame where everything is 30 m away (far)",
+                  np.full((1, H, W), 30.0, np.float32))]
+        for name, d in cases:
+            xd = d.copy()
+            call = f"corrupt on {name}"
+            _as_depths(r, _call(r, path, call, fn, xd, np.random.default_rng(1)), d, call)
+            if not in_place and not np.array_equal(xd, d):
+                r.fail(f"{call} changed its input `depth` in place",
+                       hint="return a new array; leave `depth` as it is", stop=True)
+        r.ok("also works on a single frame, and on frames all near (0.4 m) or all far (30 m)")
+
+        # how big is the error, and what shape? Next to the DispNet's
+        parts = log_error_parts(depth, y)
+        r.summary = {"log_error": parts}
+        if parts["total"] < 1e-9 and np.allclose(y, depth, rtol=1e-6, atol=0):
+            r.note("corrupt leaves the depth as it is: the paper's setting (train on clean GT "
+                   "depth), the same as --baseline. Write a corruption, then compare the "
+                   "two runs")
+        else:
+            keys = ["total", "per frame", "per column", "per row", "rest"]
+            head = f"{'':10}" + "".join(f"{k:>11}" for k in keys) + f"{'mean':>8}"
+            mine = f"{'yours':10}" + "".join(f"{parts[k]:11.3f}" for k in keys) + \
+                f"{parts['mean']:+8.3f}"
+            theirs = f"{'DispNet':10}" + "".join(f"{DISPNET_LOG_ERROR[k]:11.3f}" for k in keys)
+            r.note(f"std of your error in ln(depth), ln(corrupt(depth) / depth), on these {n} "
+                   f"frames (both clipped to 0.5-10 m, the range the Q-net reads), split per "
+                   f"frame / column / row / rest, next to the DispNet's (docs/results.md, "
+                   f"{RESULTS_SECTION}):\n{head}\n{mine}\n{theirs}")
+            if parts["total"] > TOO_STRONG:
+                r.note(f"a std of {parts['total']:.2f} in ln(depth) (a typical depth off by a "
+                       f"factor {math.exp(parts['total']):.2f}) is probably too strong: the "
+                       f"DispNet's is {DISPNET_LOG_ERROR['total']}, and the library's "
+                       f"--depth-noise 0.3 (std about 0.38) already cost flights on GT depth "
+                       f"(docs/results.md, {RESULTS_SECTION})")
+            y3 = np.asarray(_call(r, path, what + " with another seed", fn, depth.copy(),
+                                  np.random.default_rng(1)))
+            if y3.shape == y.shape and np.array_equal(y3, y):
+                r.note("the same corruption for every seed: a fixed distortion, which a "
+                       "network can learn to undo, rather than a random error")
+
+        # it reaches the training flights
+        from ..rl.flights import depth_only
+        from .flights import ClassroomFlights
+        fl = ClassroomFlights("basic", 4, seed=0, depth_fn=fn, config=_small_pool())
+        frames = _call(r, path, "the training flights' reset, with your corrupt", fl.reset)
+        _call(r, path, "the training flights' step, with your corrupt", fl.step,
+              np.zeros(4, np.int64))
+        gt = depth_only(fl.batch, fl.poses, fl.camera)
+        if not (np.all(np.isfinite(frames)) and frames.min() >= 0 and frames.max() <= 1):
+            r.fail("the training flights' frames with your corruption are not in [0, 1]",
+                   stop=True)
+        changed = not np.allclose(fl.last_depth, gt, rtol=1e-6, atol=0)
+        r.ok("reaches the training flights: the Q-net trains on " +
+             ("your corrupted depth" if changed else "GT depth (unchanged)") +
+             "; the test flights stay on the depth as it is")
+
+    return _run(Report("8 (depth errors)", path), path, body)

@@ -1,4 +1,4 @@
-"""The seven exercises: name, template file, checker, and where the instructions are."""
+"""The eight exercises: name, template file, checker, and where the instructions are."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -33,6 +33,9 @@ EXERCISES = {e.name: e for e in [
              checks.check_op, "docs/exercises/06_autograd_op.md", ""),
     Exercise(7, "depth-loss", "Depth: photometric loss L1 vs SSIM + L1", "photometric.py",
              checks.check_photometric, "docs/exercises/07_depth_loss.md", "depth"),
+    Exercise(8, "depth-errors", "Depth errors: corrupt the GT depth seen in training",
+             "depth_errors.py", checks.check_depth_errors, "docs/exercises/08_depth_errors.md",
+             "agent"),
 ]}
 
 

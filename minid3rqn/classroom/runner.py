@@ -4,12 +4,14 @@ evaluate, and print a table of every run of that exercise so far.
     run_exercise("reward")                    # exercises/reward.py, budget "small"
     run_exercise("reward", baseline=True)     # the paper's setting, same budget
 
-Agent exercises (1-5) train a Q-network on ground-truth depth (fast, and independent of
-any depth model; the pipeline with predicted depth is the same code with
+Agent exercises (1-5, 8) train a Q-network on ground-truth depth (fast, and independent
+of any depth model; the pipeline with predicted depth is the same code with
 ``--depth pred``) and evaluate it greedily on fresh test worlds: success rate (50
 steps without a collision, the paper's test), mean steps survived, and how often each
-action was chosen. The depth exercise (7) trains DispNet + PoseNet and reports abs rel
-and delta < 1.25 against ground truth on held-out frames.
+action was chosen. Exercise 8 corrupts the GT depth seen in training only, and flies
+the test flights twice: on GT depth and on the shipped DispNet's predicted depth. The
+depth exercise (7) trains DispNet + PoseNet and reports abs rel and delta < 1.25
+against ground truth on held-out frames.
 
 Every run writes ``<out>/<exercise>/<tag>/result.json``; runs with the same budget and
 seed are comparable.
@@ -63,7 +65,7 @@ DEPTH_BUDGETS = {
 def agent_settings(ex: Exercise, module, variant: str | None) -> dict:
     """The training changes an agent exercise asks for; ``module`` None = the paper's."""
     s = {"variant": variant or "d3rqn", "seq_len": 5, "actions": None, "camera": None,
-         "reward_fn": None, "td_target": None}
+         "reward_fn": None, "td_target": None, "depth_fn": None, "eval_pred": False}
     base = module is None
     if ex.name == "reward":
         s["reward_fn"] = None if base else module.reward
@@ -93,6 +95,10 @@ def agent_settings(ex: Exercise, module, variant: str | None) -> dict:
         s["variant"] = "d3rqn" if dueling else "ddrqn"
         s["tag"] = ("dueling" if dueling else "no-dueling") + "-" + \
                    {"double": "double-q", "single": "no-double-q", "online": "no-target-net"}[kind]
+    elif ex.name == "depth-errors":
+        s["depth_fn"] = None if base else module.corrupt     # in training only
+        s["eval_pred"] = True                 # test on GT depth and on predicted depth
+        s["tag"] = "paper" if base else "yours"
     else:
         raise ValueError(f"exercise {ex.name!r} does not train an agent")
     return s
@@ -161,15 +167,24 @@ def run_agent_exercise(ex: Exercise, module, budget: str = "small", variant: str
         cfg.seq_len = 1
     actions = ACTIONS if s["actions"] is None else s["actions"]
     n_flights = flights or b["flights"]
+    # exercise 8 also flies the test flights on the DispNet's depth: load it before
+    # training, so that a missing depth model stops the run now, not minutes later
+    est, est_path = _shipped_depth_estimator(cfg.scenario) if s["eval_pred"] else (None, None)
     print(f"exercise {ex.name} [{tag}]: training {cfg.variant} for {cfg.total_steps} transitions "
           f"(budget '{budget}', about {b['minutes']} min on a 2-core laptop), then "
-          f"{n_flights} test flights -> {run_dir}", flush=True)
+          f"{n_flights} test flights" + (" on GT depth and on predicted depth" if est else "")
+          + f" -> {run_dir}", flush=True)
     t0 = time.time()
+    # training: the student's change, including the depth corruption (exercise 8) ...
     with adapters.classroom_flights(actions=s["actions"], camera=s["camera"],
-                                    reward_fn=s["reward_fn"]), adapters.td_target(s["td_target"]):
+                                    reward_fn=s["reward_fn"], depth_fn=s["depth_fn"]), \
+            adapters.td_target(s["td_target"]):
         trainer = Trainer(cfg, run_dir, progress=progress)
         trainer.run()
         t_train = time.time() - t0
+    # ... testing: the same actions and camera, but never a corruption of the depth
+    with adapters.classroom_flights(actions=s["actions"], camera=s["camera"],
+                                    reward_fn=s["reward_fn"]):
         trainer.save_model(run_dir / "model.npz", {"exercise": ex.name, "tag": tag})
         # the trainer's checkpoint holds the whole replay (~140 MB at budget small); an
         # exercise run is never resumed, so keep only the model
@@ -177,6 +192,12 @@ def run_agent_exercise(ex: Exercise, module, budget: str = "small", variant: str
         policy = CountingPolicy(QNetPolicy(trainer.agent.online, name=tag), len(actions))
         res = evaluate_policy(policy, cfg.scenario, n_flights, EVAL_SEED,
                               flights_config=eval_flights_cfg, progress=progress)
+        pred = None
+        if est is not None:           # the same test flights, on the DispNet's depth
+            pred = evaluate_policy(QNetPolicy(trainer.agent.online, name=f"{tag} pred"),
+                                   cfg.scenario, n_flights, EVAL_SEED, depth="pred",
+                                   depth_estimator=est, flights_config=eval_flights_cfg,
+                                   progress=progress)
         gif = _flight_gif(run_dir, actions, flights=8 if budget != "smoke" else 2)
     share = policy.counts / max(1, policy.counts.sum())
     result = {"exercise": ex.name, "tag": tag, "budget": budget, "seed": seed,
@@ -188,13 +209,38 @@ def run_agent_exercise(ex: Exercise, module, budget: str = "small", variant: str
               "mean_abs_yaw_rate": float(share @ np.abs(np.asarray(actions)[:, 1])),
               "train_seconds": round(t_train, 1), "gif": gif,
               "last_curve_row": trainer.curve[-1] if trainer.curve else {}}
+    if pred is not None:
+        result.update({"pred_success": pred.rate, "pred_ci": [pred.ci_low, pred.ci_high],
+                       "pred_mean_steps": pred.mean_steps, "depth_model": est_path})
     (run_dir / "result.json").write_text(json.dumps(result, indent=2))
     print(f"\n{tag}: success {res.rate:.3f} [{res.ci_low:.3f}, {res.ci_high:.3f}] over "
-          f"{res.flights} flights, mean steps {res.mean_steps:.1f} / 50, trained in "
+          f"{res.flights} flights" + (" on GT depth" if pred is not None else "") +
+          f", mean steps {res.mean_steps:.1f} / 50, trained in "
           f"{t_train / 60:.1f} min; learning curve: {run_dir / 'curve.png'}"
           + (f"; a test flight: {gif}" if gif else ""))
+    if pred is not None:
+        print(f"{tag}: success {pred.rate:.3f} [{pred.ci_low:.3f}, {pred.ci_high:.3f}] on the "
+              f"same flights on predicted depth ({est_path}), mean steps "
+              f"{pred.mean_steps:.1f} / 50; GT minus predicted: {res.rate - pred.rate:+.3f}")
     print(summary_table(ex.name, out))
     return result
+
+
+def _shipped_depth_estimator(scenario: str):
+    """(estimator, path): the shipped DispNet of ``scenario``
+    (minid3rqn/models/depth_<scenario>.npz), loaded as ``evaluate --depth pred`` loads it."""
+    from ..rl.commands import load_depth_estimator, shipped_depth_model
+    path = shipped_depth_model(scenario)
+    if not path.is_file():
+        raise SystemExit(f"exercise: the shipped depth model {str(path)!r} is missing; it is "
+                         f"needed to fly the test flights on predicted depth (reinstall the "
+                         f"package, or train one with `python -m minid3rqn train-depth "
+                         f"--scenario {scenario} --ship`)")
+    try:
+        shown = str(path.resolve().relative_to(REPO_ROOT))
+    except ValueError:
+        shown = str(path)
+    return load_depth_estimator(path), shown
 
 
 def _flight_gif(run_dir: Path, actions, flights: int = 8):
@@ -296,7 +342,22 @@ def summary_table(exercise: str, out=OUT) -> str:
             continue
     if not rows:
         return f"(no runs of {exercise} yet)"
-    if exercise == "depth-loss":
+    if exercise == "depth-errors":
+        lines = [f"{'':<22} {'':<7} {'--------- on GT depth ---------':>31} "
+                 f"{'----- on predicted depth ------':>31}",
+                 f"{'run':<22} {'budget':<7} {'success':>8} {'95% CI':>15} {'steps':>6} "
+                 f"{'success':>8} {'95% CI':>15} {'steps':>6} {'GT-pred':>8} {'minutes':>8}"]
+        for r in rows:
+            ci = f"[{r['ci'][0]:.2f}, {r['ci'][1]:.2f}]"
+            if "pred_success" in r:
+                pci = f"[{r['pred_ci'][0]:.2f}, {r['pred_ci'][1]:.2f}]"
+                pred = (f"{r['pred_success']:8.3f} {pci:>15} {r['pred_mean_steps']:6.1f} "
+                        f"{r['success'] - r['pred_success']:+8.3f}")
+            else:
+                pred = f"{'-':>8} {'-':>15} {'-':>6} {'-':>8}"
+            lines.append(f"{r['tag']:<22} {r['budget']:<7} {r['success']:8.3f} {ci:>15} "
+                         f"{r['mean_steps']:6.1f} {pred} {r['train_seconds'] / 60:8.1f}")
+    elif exercise == "depth-loss":
         lines = [f"{'run':<22} {'budget':<7} {'abs rel':>8} {'sq rel':>8} {'rmse':>7} "
                  f"{'d<1.25':>7} {'minutes':>8}"]
         for r in rows:
