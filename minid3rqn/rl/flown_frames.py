@@ -9,8 +9,10 @@ errors cost flights"). ``collect_flown`` films what the Q-net itself sees:
 
     for every chunk of ``chunk`` flights (fresh training worlds, its own seed):
         fly the policy (on the DispNet's depth, as deployed) until it collides or
-        ``max_steps`` actions are done, recording the pose before every action and
-        the pose it reaches after it (also the one where it came too close);
+        ``max_steps`` actions are done, recording its start pose and the pose after
+        every action, except the action that brought it within the safe distance
+        (that step can end with the camera at, or in, an obstacle; the scripted pilot
+        stops before such a step too);
     render each flight's poses (RGB, and GT depth for evaluation only)
 
 and returns the arrays of a sequence file, exactly as ``collect`` does: consecutive
@@ -33,8 +35,8 @@ from .flights import Flights, FlightsConfig
 def flown_poses(policy, flights: Flights, max_steps: int) -> list[np.ndarray]:
     """Fly ``flights`` once with ``policy``; the camera poses of every flight, (F_k, 3).
 
-    A flight's poses are its start and the pose after each action it took, including
-    the action that brought it within the safe distance (its last frame)."""
+    A flight's poses are its start and the pose after each action it took safely: the
+    action that brought it within the safe distance ends the flight without a frame."""
     starts = None
     steps = []
 
@@ -42,12 +44,13 @@ def flown_poses(policy, flights: Flights, max_steps: int) -> list[np.ndarray]:
         nonlocal starts
         if starts is None:
             starts = obs["poses"].copy()
-        steps.append((obs["active"].copy(), obs["flights"].poses.copy()))
+        safe = obs["active"] & ~res.terminated
+        steps.append((safe, obs["flights"].poses.copy()))
 
     run_flights(policy, flights, max_steps, record=record)
     poses = []
     for k in range(flights.n):
-        after = [p[k] for a, p in steps if a[k]]
+        after = [p[k] for safe, p in steps if safe[k]]
         poses.append(np.stack([starts[k]] + after))
     return poses
 
