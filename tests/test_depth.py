@@ -7,7 +7,8 @@ import pytest
 from minid3rqn import autograd as ag
 from minid3rqn.autograd import Tensor
 from minid3rqn.depth.data import Sequence, collect, load_sequence, save_sequence, triplet_indices
-from minid3rqn.depth.evaluate import DepthEstimator, depth_metrics, evaluate, horizon_band
+from minid3rqn.depth.evaluate import (DepthEstimator, depth_metrics, errors_by_depth, evaluate,
+                                      horizon_band)
 from minid3rqn.depth.geometry import (check_intrinsics, inverse_warp, matrix_to_pose_vec,
                                       pose_vec_to_mat)
 from minid3rqn.depth.losses import LossConfig, photometric_error, view_synthesis_loss
@@ -272,6 +273,20 @@ def test_metrics_of_a_perfect_and_a_scaled_prediction():
     assert m["abs_rel"] < 1e-12 and m["a1"] == 1.0
     m = depth_metrics(3.7 * gt, gt, median_scaling=False)
     assert m["abs_rel"] > 1
+
+
+def test_a_frame_without_valid_pixels_is_left_out_not_a_nan():
+    rng = np.random.default_rng(0)
+    gt = rng.uniform(1, 10, (3, 8, 12))
+    pred = gt * rng.uniform(0.8, 1.25, gt.shape)
+    wall = gt.copy()
+    wall[1] = 0.05                     # a camera against a wall: no GT depth over 0.1 m
+    m = depth_metrics(pred, wall)
+    assert all(np.isfinite(v) for v in m.values())
+    assert m == depth_metrics(pred[[0, 2]], gt[[0, 2]])
+    assert all(np.isfinite(r["share"]) for r in errors_by_depth(pred, wall))
+    with pytest.raises(ValueError, match="no pixel has a GT depth"):
+        depth_metrics(pred, np.full_like(gt, 0.05))
 
 
 def test_estimator_round_trip_and_shapes(tiny_sequence, tmp_path):

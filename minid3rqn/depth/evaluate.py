@@ -180,7 +180,9 @@ def align_to_gt(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
     depth (min_depth < g < max_depth), and ``p`` the prediction scaled per image by
     median(g[ok]) / median(p[ok]) (SfMLearner's protocol; skipped with
     ``median_scaling=False``, to judge the model's own metric scale), then clipped to
-    [min_depth, max_depth].
+    [min_depth, max_depth]. A frame without a valid pixel (a camera against a wall: every
+    GT depth under ``min_depth``) keeps its scale of 1 and is scored nowhere, like any
+    invalid pixel; if no frame has a valid pixel, ``ValueError``.
     """
     p = np.asarray(pred, dtype=np.float64)
     g = np.asarray(gt, dtype=np.float64)
@@ -188,8 +190,12 @@ def align_to_gt(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
         raise ValueError(f"{name}: pred {p.shape} and gt {g.shape} must be the same "
                          f"(N, H, W) shape")
     ok = (g > min_depth) & (g < max_depth) & np.isfinite(g)
+    if not ok.any():
+        raise ValueError(f"{name}: no pixel has a GT depth in ({min_depth:g}, {max_depth:g}) m "
+                         f"in any of the {len(g)} frames; nothing to score")
     if median_scaling:
-        scale = np.array([np.median(gi[m]) / np.median(pi[m]) for pi, gi, m in zip(p, g, ok)])
+        scale = np.array([np.median(gi[m]) / np.median(pi[m]) if m.any() else 1.0
+                          for pi, gi, m in zip(p, g, ok)])
         p = p * scale[:, None, None]
     return np.clip(p, min_depth, max_depth), g, ok
 
@@ -199,7 +205,7 @@ def depth_metrics(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
     """The seven metrics (module docstring), averaged over images; (N, H, W) inputs."""
     p, g, ok = align_to_gt(pred, gt, min_depth, max_depth, median_scaling)
     rows = []
-    for pi, gi in ((pi[m], gi[m]) for pi, gi, m in zip(p, g, ok)):
+    for pi, gi in ((pi[m], gi[m]) for pi, gi, m in zip(p, g, ok) if m.any()):
         ratio = np.maximum(pi / gi, gi / pi)
         rows.append([np.mean(np.abs(pi - gi) / gi), np.mean((pi - gi) ** 2 / gi),
                      np.sqrt(np.mean((pi - gi) ** 2)),
