@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from minid3rqn.depth.evaluate import log_error_parts
 from minid3rqn.rl.commands import (VARIANT_NAMES, encoding_for, horizon_for,
                                    load_depth_estimator)
 from minid3rqn.rl.evaluate import evaluate_policy
@@ -111,19 +112,14 @@ def error_structure(pol, est, scenario: str, cfg: FlightsConfig, seed: int, n: i
                  autoreset=True)
     frames = fl.reset()
     pol.reset(n)
-    errs = []
+    gts, preds = [], []
     for _ in range(steps):
-        gt = depth_only(fl.batch, fl.poses, fl.camera)
-        errs.append(np.log(np.clip(fl.last_depth, 0.5, 10.0) / np.clip(gt, 0.5, 10.0)))
+        gts.append(depth_only(fl.batch, fl.poses, fl.camera))
+        preds.append(fl.last_depth.copy())
         frames = fl.step(pol.act({"frames": frames, "depth": fl.last_depth})).frames
-    e = np.concatenate(errs)                                   # (F, H, W)
-    a = e.mean(axis=(1, 2), keepdims=True)
-    b = (e - a).mean(axis=1, keepdims=True)
-    c = (e - a - b).mean(axis=2, keepdims=True)
-    r = e - a - b - c
-    return {"total": float(e.std()), "per frame": float(a.std()),
-            "per column": float(b.std()), "per row": float(c.std()),
-            "rest": float(r.std()), "frames": int(len(e))}
+    parts = log_error_parts(np.concatenate(gts), np.concatenate(preds))   # (F, H, W)
+    parts.pop("mean")
+    return {**parts, "frames": len(gts) * n}
 
 
 def views(r: float) -> dict:

@@ -355,13 +355,14 @@ def test_depth_errors_wrong_signature(tmp_path):
 
 
 def test_log_error_parts_splits_the_error():
+    from minid3rqn.depth.evaluate import log_error_parts
     rng = np.random.default_rng(0)
     depth = rng.uniform(1.0, 8.0, (400, 32, 104))
     per_frame = depth * np.exp(rng.normal(0.0, 0.1, (400, 1, 1)))
-    parts = checks.log_error_parts(depth, np.clip(per_frame, 0.5, 10.0))
+    parts = log_error_parts(depth, np.clip(per_frame, 0.5, 10.0))
     assert parts["per column"] < 0.02 and parts["per row"] < 0.02 and parts["rest"] < 0.02
     per_column = depth * np.exp(rng.normal(0.0, 0.1, (400, 1, 104)))
-    parts = checks.log_error_parts(depth, np.clip(per_column, 0.5, 10.0))
+    parts = log_error_parts(depth, np.clip(per_column, 0.5, 10.0))
     assert parts["per column"] > 5 * max(parts["per row"], parts["rest"]), parts
 
 

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ..depth.evaluate import log_error_parts
 from .loader import describe, get_callable, get_value, load_student_module, where_in
 from .report import Report, Stop
 
@@ -632,34 +633,11 @@ def check_photometric(path) -> Report:
 # =====================================================================================
 # The DispNet's error e = ln(predicted / GT depth) as measured on 1280 frames of test
 # flights (docs/results.md, "Two ways to make a GT-trained net robust to those errors"),
-# split as ``log_error_parts`` splits a student's.
+# split as ``depth.evaluate.log_error_parts`` splits a student's.
 DISPNET_LOG_ERROR = {"total": 0.146, "per frame": 0.044, "per column": 0.103,
                      "per row": 0.038, "rest": 0.086}
 RESULTS_SECTION = '"Two ways to make a GT-trained net robust to those errors"'
 TOO_STRONG = 0.5          # std of the log-depth error above which the checker warns
-Q_NET_RANGE = (0.5, 10.0)  # metres: the depth range the Q-net reads (examples/07 clips to it)
-
-
-def log_error_parts(depth, corrupted, clip=Q_NET_RANGE) -> dict:
-    """The log-depth error e = ln(corrupted / depth) of frames (F, H, W), split as
-
-        e(f, v, u) = a(f) + b(f, u) + c(f, v) + r(f, v, u):
-
-    a the frame's mean, b the column means of e - a, c the row means of e - a - b, and
-    r the rest. Returns the std of e and of each part (pixels weighted alike), and the
-    mean of e. Both depths are clipped to ``clip`` (0.5 to 10 m, the range the Q-net
-    reads) first: the split and the clip of the DispNet's measured error
-    (``error_structure`` in examples/07_which_depth_errors_matter.py)."""
-    lo, hi = clip
-    e = np.log(np.clip(np.asarray(corrupted, np.float64), lo, hi) /
-               np.clip(np.asarray(depth, np.float64), lo, hi))
-    a = e.mean(axis=(1, 2), keepdims=True)
-    b = (e - a).mean(axis=1, keepdims=True)
-    c = (e - a - b).mean(axis=2, keepdims=True)
-    rest = e - a - b - c
-    return {"total": float(e.std()), "per frame": float(a.std()),
-            "per column": float(b.std()), "per row": float(c.std()),
-            "rest": float(rest.std()), "mean": float(e.mean())}
 
 
 def _gt_frames(flights: int = 8, steps: int = 3, seed: int = 0) -> np.ndarray:

@@ -249,6 +249,36 @@ def errors_by_depth(pred, gt, bins=DEPTH_BINS, median_scaling: bool = True,
     return out
 
 
+Q_NET_RANGE = (0.5, 10.0)  # metres: the depth range a Q-net reads (rl.flights clips at 10 m)
+
+
+def log_error_parts(depth, estimate, clip=Q_NET_RANGE) -> dict:
+    """How a depth error is laid out: e = ln(estimate / depth) of frames (F, H, W),
+    split as
+
+        e(f, v, u) = a(f) + b(f, u) + c(f, v) + r(f, v, u):
+
+    a the frame's mean, b the column means of e - a, c the row means of e - a - b, and
+    r the rest. Returns the std of e and of each part (pixels weighted alike), and the
+    mean of e. Both depths are clipped to ``clip`` first (0.5 to 10 m, the range a
+    Q-net reads). Used for the DispNet's error in flight
+    (examples/07_which_depth_errors_matter.py) and for a student's corruption
+    (classroom exercise 8)."""
+    lo, hi = clip
+    e = np.log(np.clip(np.asarray(estimate, np.float64), lo, hi) /
+               np.clip(np.asarray(depth, np.float64), lo, hi))
+    if e.ndim != 3:
+        raise ValueError(f"log_error_parts: depth and estimate must be (frames, rows, "
+                         f"columns); got shape {e.shape}")
+    a = e.mean(axis=(1, 2), keepdims=True)
+    b = (e - a).mean(axis=1, keepdims=True)
+    c = (e - a - b).mean(axis=2, keepdims=True)
+    rest = e - a - b - c
+    return {"total": float(e.std()), "per frame": float(a.std()),
+            "per column": float(b.std()), "per row": float(c.std()),
+            "rest": float(rest.std()), "mean": float(e.mean())}
+
+
 def pose_errors(posenet, seq: Sequence, max_triplets: int = 500) -> dict:
     """Translation (scale-aligned per snippet, metres) and rotation (degrees) errors of a
     PoseNet of the (previous, next) sources."""
