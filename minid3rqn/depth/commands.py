@@ -159,6 +159,13 @@ def _run_collect_flown(args, out: Path, t0: float) -> int:
     return 0
 
 
+def _picture_rows(estimator, test, n: int = 6) -> np.ndarray:
+    """``n`` frames spread over ``test`` that the estimator can predict (for a two-frame
+    model: frames with a previous frame in their flight)."""
+    idx = estimator.sequence_targets(test)
+    return idx[np.linspace(0, len(idx) - 1, n).astype(int)]
+
+
 def _ensure_data(path: Path, scenario: str, frames: int, seed: int, fpf: int = 50,
                  late: float = 0.0, frame_dt: float = 0.4, crab_deg: float = 0.0,
                  camera=None):
@@ -243,6 +250,10 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--full-res", action="store_true",
                    help="monodepth2's loss: upsample every scale's disparity and warp the "
                         "full-size images (default: SfMLearner's downsampled images)")
+    p.add_argument("--prev-frame", action="store_true",
+                   help="ours: a two-frame DispNet, which also reads the frame before (the "
+                        "motion between them); --init-from a one-frame model starts it "
+                        "where that model is (docs/depth.md section 7)")
     p.add_argument("--no-edge-aware", action="store_true")
     p.add_argument("--no-min-reprojection", action="store_true")
     p.add_argument("--no-automask", action="store_true")
@@ -291,7 +302,8 @@ def config_from_args(args):
                        flip=not args.no_flip, pose_dof=args.pose_dof,
                        init_disp=args.init_disp, pose_rot_scale=args.pose_rot_scale,
                        pose_init_forward=init, loss=loss,
-                       source_offsets=_offsets(args.source_offsets))
+                       source_offsets=_offsets(args.source_offsets),
+                       prev_frame=args.prev_frame)
 
 
 class _LearningCurve:
@@ -376,8 +388,8 @@ def run_train_depth(args) -> int:
             "history": trainer.history[-1:] if trainer.history else []}
     estimator.save(paths["model"], meta)
     (paths["dir"] / "results.json").write_text(json.dumps(meta, indent=2))
-    rows = np.linspace(0, len(test) - 1, 6).astype(int)
-    comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]), test.depth[rows],
+    rows = _picture_rows(estimator, test)
+    comparison_picture(test.rgb[rows], estimator.predict_sequence(test, rows), test.depth[rows],
                        paths["dir"] / "pictures.png")
     if args.ship:
         models = Path(__file__).resolve().parent.parent / "models"
@@ -458,7 +470,8 @@ def run_eval_depth(args) -> int:
         results["band_rows"] = [int(np.flatnonzero(band)[0]), int(np.flatnonzero(band)[-1])]
     if args.by_depth:
         from .evaluate import errors_by_depth
-        pred, gt = estimator.predict(test.rgb), test.depth
+        idx = estimator.sequence_targets(test)
+        pred, gt = estimator.predict_sequence(test, idx), test.depth[idx]
         if band is not None:
             pred, gt = pred[:, band], gt[:, band]
         rows = errors_by_depth(pred, gt,
@@ -471,8 +484,8 @@ def run_eval_depth(args) -> int:
                   f"{r['abs_rel']:.3f}     {r['signed_rel']:+.3f}")
         results["by_depth"] = rows
     if args.pictures:
-        rows = np.linspace(0, len(test) - 1, 6).astype(int)
-        comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]),
+        rows = _picture_rows(estimator, test)
+        comparison_picture(test.rgb[rows], estimator.predict_sequence(test, rows),
                            test.depth[rows], args.pictures)
     text = json.dumps({k: (round(v, 4) if isinstance(v, float) else v)
                        for k, v in results.items()})

@@ -68,6 +68,7 @@ class DepthEstimator:
         self._fast = None                   # DispNetInference, built at the first predict
         self.height = self.meta.get("height", 32)
         self.width = self.meta.get("width", 104)
+        self.in_frames = getattr(dispnet, "in_frames", 1)   # 2: also reads the previous frame
 
     @property
     def horizon_row(self) -> float:
@@ -97,7 +98,8 @@ class DepthEstimator:
         if meta and "config" in meta and "iteration" in meta:       # a training checkpoint
             from .train import TrainConfig
             cfg = TrainConfig.from_dict(meta["config"])
-            net = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales)
+            net = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales,
+                          in_frames=2 if cfg.prev_frame else 1)
             net.load_state_dict({k[5:]: v for k, v in arrays.items() if k.startswith("disp.")})
             # With the known-speed term the network's depth is already in metres.
             kept = {k: meta[k] for k in ("iteration", "horizon_row") if k in meta}
@@ -107,7 +109,8 @@ class DepthEstimator:
                              f"(no 'dispnet' metadata); write one with train-depth")
         c = meta["dispnet"]
         net = DispNet(tuple(c["encoder"]), tuple(c["decoder"]), c["n_scales"],
-                      c["disp_scale"], c["min_disp"], c.get("double_conv", True))
+                      c["disp_scale"], c["min_disp"], c.get("double_conv", True),
+                      in_frames=c.get("in_frames", 1))
         net.load_state_dict(arrays)
         return cls(net, meta.get("scale", 1.0), meta)
 
@@ -136,16 +139,57 @@ class DepthEstimator:
             raise TypeError(f"DepthEstimator: rgb must be uint8 (0..255); got {rgb.dtype}")
         return rgb, single
 
-    def predict_disp(self, rgb, batch_size: int = 64) -> np.ndarray:
+    def _input(self, rgb, prev) -> tuple[np.ndarray, bool]:
+        """The network's channels-last input: the checked frames, and with a two-frame
+        DispNet the previous frames after them on channels (N, H, W, 6)."""
+        rgb, single = self._frames(rgb)
+        if self.in_frames == 1:
+            if prev is not None:
+                raise ValueError("DepthEstimator: this model reads one frame; prev (the "
+                                 "previous frames) is for a two-frame model (train-depth "
+                                 "--prev-frame)")
+            return rgb, single
+        if prev is None:
+            raise ValueError("DepthEstimator: this model reads two frames (train-depth "
+                             "--prev-frame): give prev, the frames filmed one step before rgb")
+        prev, _ = self._frames(prev)
+        if prev.shape != rgb.shape:
+            raise ValueError(f"DepthEstimator: prev must have rgb's shape {rgb.shape}; got "
+                             f"{prev.shape}")
+        return np.concatenate([rgb, prev], axis=-1), single
+
+    def sequence_targets(self, seq: Sequence, idx=None) -> np.ndarray:
+        """The frames of ``seq`` (of ``idx``, default all) this model can predict: all of
+        them, or for a two-frame model those with a previous frame in their flight."""
+        idx = np.arange(len(seq)) if idx is None else np.asarray(idx)
+        if self.in_frames == 1:
+            return idx
+        return idx[(idx > 0) & (seq.flight[np.maximum(idx - 1, 0)] == seq.flight[idx])]
+
+    def predict_sequence(self, seq: Sequence, idx) -> np.ndarray:
+        """Depth (N, H, W) of the frames ``idx`` of ``seq`` (each with its previous frame,
+        for a two-frame model: ``sequence_targets`` lists the frames that have one)."""
+        idx = np.asarray(idx)
+        if self.in_frames == 1:
+            return self.predict(seq.rgb[idx])
+        ok = self.sequence_targets(seq, idx)
+        if len(ok) != len(idx):
+            raise ValueError("DepthEstimator.predict_sequence: a two-frame model needs the "
+                             "previous frame of each frame in its flight; pick the frames "
+                             "with sequence_targets")
+        return self.predict(seq.rgb[idx], prev=seq.rgb[idx - 1])
+
+    def predict_disp(self, rgb, batch_size: int = 64, prev=None) -> np.ndarray:
         """rgb uint8 (N, H, W, 3) or (H, W, 3) -> network disparity (N, H, W) float32.
 
         Equal (to float32 round-off) to ``predict_disp_autograd``, the autograd forward
         ``net(rgb as (N, 3, H, W) float32 / 255, scales=1)[0]``; computed by the
         graph-free ``DispNetInference``. ``batch_size`` is kept for compatibility (the
         inference path runs its own chunks). With ``flip``: the mean of that and its value
-        on the mirrored frames, mirrored back.
+        on the mirrored frames, mirrored back. ``prev``: the frames before ``rgb``, for a
+        two-frame model (and only for one).
         """
-        rgb, single = self._frames(rgb)
+        rgb, single = self._input(rgb, prev)
         if self._fast is None:
             self._fast = self.net.inference()
         out = self._fast(rgb).astype(np.float32, copy=False)
@@ -154,11 +198,11 @@ class DepthEstimator:
             out = 0.5 * (out + mirrored[:, :, ::-1].astype(np.float32, copy=False))
         return out[0] if single else out
 
-    def predict_disp_autograd(self, rgb, batch_size: int = 64) -> np.ndarray:
+    def predict_disp_autograd(self, rgb, batch_size: int = 64, prev=None) -> np.ndarray:
         """``predict_disp`` through the autograd forward (``DispNet.forward`` under
         ``no_grad``), as it was computed before the inference path: the reference for
         tests and benchmarks."""
-        rgb, single = self._frames(rgb)
+        rgb, single = self._input(rgb, prev)
         out = np.empty(rgb.shape[:3], dtype=np.float32)
         with ag.no_grad():
             for k in range(0, len(rgb), batch_size):
@@ -166,9 +210,10 @@ class DepthEstimator:
                 out[k:k + batch_size] = self.net(x, scales=1)[0].data[:, 0]
         return out[0] if single else out
 
-    def predict(self, rgb, batch_size: int = 64) -> np.ndarray:
-        """rgb uint8 (N, H, W, 3) -> depth float32 (N, H, W) in metres (see class doc)."""
-        return (self.scale / self.predict_disp(rgb, batch_size)).astype(np.float32)
+    def predict(self, rgb, batch_size: int = 64, prev=None) -> np.ndarray:
+        """rgb uint8 (N, H, W, 3) -> depth float32 (N, H, W) in metres (see class doc);
+        a two-frame model also needs ``prev``, the frames filmed one step before."""
+        return (self.scale / self.predict_disp(rgb, batch_size, prev)).astype(np.float32)
 
 
 # -- metrics -----------------------------------------------------------------------------
@@ -335,10 +380,11 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
     the median scaling uses the scored pixels), e.g. ``horizon_band``."""
     if seq.depth is None:
         raise ValueError("evaluate: the sequence has no GT depth")
-    idx = np.arange(len(seq))
-    if max_frames and len(idx) > max_frames:
+    two = getattr(estimator, "in_frames", 1) == 2       # a two-frame model scores the
+    idx = estimator.sequence_targets(seq) if two else np.arange(len(seq))  # frames with
+    if max_frames and len(idx) > max_frames:            # a previous one in their flight
         idx = idx[np.linspace(0, len(idx) - 1, max_frames).astype(int)]
-    pred = estimator.predict(seq.rgb[idx])
+    pred = estimator.predict_sequence(seq, idx) if two else estimator.predict(seq.rgb[idx])
     gt = seq.depth[idx]
     if rows is not None:
         pred, gt = pred[:, rows], gt[:, rows]

@@ -65,6 +65,7 @@ class TrainConfig:
     gyro_noise: float = 0.005       # rad: std of the simulated gyro's yaw error per frame pair
     gyro_yaw: bool = False          # warp with the gyro's yaw in place of PoseNet's
     source_offsets: tuple = (-1, 1)  # the sources of target t: frames t + o (SfMLearner: -1, 1)
+    prev_frame: bool = False        # ours: the DispNet also reads frame t - 1 (two frames in)
     loss: LossConfig = field(default_factory=LossConfig)
 
     def to_dict(self) -> dict:
@@ -84,7 +85,8 @@ class TrainConfig:
 
 def build_nets(cfg: TrainConfig) -> tuple[DispNet, PoseNet]:
     rng = np.random.default_rng(cfg.seed)
-    disp = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales, init_disp=cfg.init_disp, rng=rng)
+    disp = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales, init_disp=cfg.init_disp, rng=rng,
+                   in_frames=2 if cfg.prev_frame else 1)
     # T_{t->s} of a source o frames later moves the camera o steps forward: its
     # translation starts at tz = -o x pose_init_forward (+0.8 m for the previous frame).
     pose = PoseNet(n_sources=len(cfg.source_offsets), pose_scale=cfg.pose_scale,
@@ -124,6 +126,9 @@ class Trainer:
                              f"{sequence.step} m (speed x dt in its metadata); set "
                              f"LossConfig.step to the sequence's step")
         self.offsets = tuple(cfg.source_offsets)
+        if cfg.prev_frame and -1 not in self.offsets:
+            raise ValueError(f"Trainer: prev_frame (a two-frame DispNet) reads frame t - 1, "
+                             f"so the source offsets must include -1; got {list(self.offsets)}")
         self.targets = sequence.target_indices(self.offsets)
         if len(self.targets) == 0:
             raise ValueError(f"Trainer: the sequence has no triplet (a target with its sources "
@@ -183,9 +188,16 @@ class Trainer:
         decay = self.cfg.lr_decay_at is not None and self.iteration >= self.cfg.lr_decay_at
         return self.cfg.lr * (0.1 if decay else 1.0)
 
+    def disp_input(self, target: np.ndarray, sources) -> np.ndarray:
+        """What the DispNet reads: the target frames (B, 3, H, W), and with
+        ``prev_frame`` the frames before them too (B, 6, H, W)."""
+        if not self.cfg.prev_frame:
+            return target
+        return np.concatenate([target, sources[self.offsets.index(-1)]], axis=1)
+
     def step(self) -> dict:
         target, sources, K = self.sample_batch()
-        disps = self.disp(target)
+        disps = self.disp(self.disp_input(target, sources))
         use_gyro = self.cfg.loss.gyro_weight > 0 or (self.cfg.gyro_yaw and not self.cfg.gt_pose)
         gyro = self.gyro_yaws(*self._last) if use_gyro else None
         if self.cfg.gt_pose:
@@ -270,17 +282,29 @@ class Trainer:
         pick = lambda prefix: {k[len(prefix):]: v for k, v in arrays.items()
                                if k.startswith(prefix)}
         if any(k.startswith("disp.") for k in arrays):
-            self.disp.load_state_dict(pick("disp."))
+            self.disp.load_state_dict(self._widened(pick("disp.")))
             self.pose.load_state_dict(pick("pose."))
         else:  # a DepthEstimator file: the DispNet's weights under their own names
-            self.disp.load_state_dict({k: v for k, v in arrays.items() if "." in k})
+            self.disp.load_state_dict(self._widened({k: v for k, v in arrays.items()
+                                                     if "." in k}))
+
+    def _widened(self, weights: dict) -> dict:
+        """A one-frame DispNet's weights for this run's two-frame DispNet: the first
+        conv's kernels of the previous frame's channels start at zero, so the network
+        starts out computing exactly what the one-frame network did, and learns from
+        there what the previous frame adds. Other weights: unchanged."""
+        first = weights.get("enc_a.0.weight")
+        if self.cfg.prev_frame and first is not None and first.shape[1] == 3:
+            weights = dict(weights)
+            weights["enc_a.0.weight"] = np.concatenate([first, np.zeros_like(first)], axis=1)
+        return weights
 
     def load_checkpoint(self, path) -> None:
         arrays, meta = load_npz(path)
         saved = TrainConfig.from_dict(meta["config"])
         for key in ("seed", "batch_size", "encoder", "decoder", "n_scales", "lr", "loss",
                     "init_disp", "pose_scale", "pose_head_gain", "pose_dof", "pose_init_forward",
-                    "pose_rot_scale", "gt_pose", "gyro_yaw", "gyro_noise"):
+                    "pose_rot_scale", "gt_pose", "gyro_yaw", "gyro_noise", "prev_frame"):
             if getattr(saved, key) != getattr(self.cfg, key):
                 raise ValueError(f"resume: the checkpoint {str(path)!r} was made with {key} = "
                                  f"{getattr(saved, key)!r}, this run asks {getattr(self.cfg, key)!r}")

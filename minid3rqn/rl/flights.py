@@ -170,10 +170,33 @@ class Flights:
             depth = depth_only(sub, poses, self.camera)
         else:
             rgb, _ = render_batch(sub, poses, self.camera)
-            depth = np.asarray(self.estimator.predict(rgb), dtype=np.float32) * self.cfg.depth_scale
+            if getattr(self.estimator, "in_frames", 1) == 2:      # a two-frame DispNet
+                depth = self.estimator.predict(rgb, prev=self._previous_rgb(idx, sub))
+            else:
+                depth = self.estimator.predict(rgb)
+            depth = np.asarray(depth, dtype=np.float32) * self.cfg.depth_scale
         if self.cfg.depth_noise > 0:
             depth = (depth * np.exp(self.depth_error(len(idx)))).astype(np.float32)
         return depth, self.encode(depth), rgb
+
+    def _previous_rgb(self, idx, sub: SceneBatch) -> np.ndarray:
+        """The frames filmed one step before the current views of flights ``idx``, for a
+        two-frame DispNet (train-depth --prev-frame): the last frame each flight saw; at
+        an episode's start, the view from 0.8 m further back on its heading (the drone
+        was already flying straight at 2 m/s when the episode began)."""
+        idx = np.asarray(idx)
+        fresh = (self.t[idx] == 0) if self.last_rgb is not None else np.ones(len(idx), bool)
+        prev = np.empty((len(idx),) + self.frame_shape + (3,), np.uint8)
+        if (~fresh).any():
+            prev[~fresh] = self.last_rgb[idx[~fresh]]
+        if fresh.any():
+            back = self.poses[idx[fresh]].copy()
+            step = float(self.actions[0, 0]) * ACTION_INTERVAL
+            back[:, 0] -= step * np.cos(back[:, 2])
+            back[:, 1] -= step * np.sin(back[:, 2])
+            part = sub if fresh.all() else sub.subset(np.flatnonzero(fresh))
+            prev[fresh], _ = render_batch(part, back, self.camera)
+        return prev
 
     def depth_error(self, m: int) -> np.ndarray:
         """A smooth random error in log depth for ``m`` frames, (m, H, W) (ours; a
