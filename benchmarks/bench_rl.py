@@ -40,6 +40,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -184,15 +185,17 @@ class _TimedEstimator:
 
     def __init__(self, est):
         self.est, self.seconds = est, 0.0
+        self.in_frames = getattr(est, "in_frames", 1)    # 2: Flights hands it prev frames
 
-    def predict(self, rgb):
+    def predict(self, rgb, prev=None):
         t = time.perf_counter()
-        out = self.est.predict(rgb)
+        out = self.est.predict(rgb) if prev is None else self.est.predict(rgb, prev=prev)
         self.seconds += time.perf_counter() - t
         return out
 
 
-def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int = 1) -> dict:
+def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int = 1,
+                    depth_model: str | None = None) -> dict:
     """Render -> DispNet -> Q-net step -> world step for ``n_flights`` flights in lockstep
     (batched over flights): frames per second (= Hz per flight when n_flights = 1).
 
@@ -200,12 +203,13 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
     step (arc, clearance checks, reward, resets) and the next observation (render RGB,
     DispNet depth). Each frame is rendered and its depth predicted once. (Until this
     session the loop also re-rendered and re-predicted the current pose before acting,
-    doing the perception twice per step; ``rendered_twice`` runs that old loop.)"""
+    doing the perception twice per step; ``rendered_twice`` runs that old loop.)
+    ``depth_model``: another DispNet file (e.g. a two-frame one, train-depth --prev-frame)."""
     import numpy as np
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.flights import Flights
     policy, model = _qnet_model(ensemble)
-    depth_path = shipped_depth_model("basic")
+    depth_path = Path(depth_model) if depth_model else shipped_depth_model("basic")
     if depth_path.exists():
         est, depth_name = load_depth_estimator(depth_path), f"DispNet {depth_path.name}"
     else:   # the speed does not depend on the weights: time an untrained DispNet
@@ -304,7 +308,7 @@ def child(args) -> None:
     if "framework" in parts:
         for n_flights in (1, 16):
             print(json.dumps(bench_framework(args.repeat, args.threads, n_flights,
-                                             args.ensemble)), flush=True)
+                                             args.ensemble, args.depth_model)), flush=True)
     if "framework_old" in parts:
         for n_flights in (1, 16):
             print(json.dumps(bench_framework_rendered_twice(args.repeat, args.threads,
@@ -326,6 +330,8 @@ def main():
                    help="comma list of process counts for the eval part, e.g. 1,2")
     p.add_argument("--ensemble", type=int, default=1,
                    help="framework and eval parts: fly N copies of the D3RQN as an ensemble")
+    p.add_argument("--depth-model", default=None,
+                   help="framework part: this DispNet file instead of the shipped one")
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.child:
@@ -338,6 +344,8 @@ def main():
            "--eval-workers", args.eval_workers, "--ensemble", str(args.ensemble)]
     if args.only:
         cmd += ["--only", args.only]
+    if args.depth_model:
+        cmd += ["--depth-model", args.depth_model]
     sys.exit(subprocess.run(cmd, env=env).returncode)
 
 
