@@ -78,6 +78,9 @@ def test_training_reads_the_previous_frame_and_is_scored_where_there_is_one(seq)
     assert len(idx) == len(seq) - (seq.flight.max() + 1)      # all but each flight's first
     assert np.all(seq.flight[idx - 1] == seq.flight[idx])
     assert evaluate(est, seq)["frames"] == len(idx)
+    one = DepthEstimator(Trainer(seq, _cfg()).disp, 1.0, {"height": 16, "width": 24})
+    assert evaluate(one, seq)["frames"] == len(seq)
+    assert evaluate(one, seq, with_previous=True)["frames"] == len(idx)
     with pytest.raises(ValueError, match="source offsets must include -1"):
         Trainer(seq, _cfg(prev_frame=True, source_offsets=(1, 2)))
 
@@ -120,4 +123,6 @@ def test_train_depth_prev_frame_smoke(tmp_path, capsys):
     assert est.in_frames == 2
     assert commands.main(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
                           str(run / "test.npz"), "--by-depth"]) == 0
+    assert commands.main(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
+                          str(run / "test.npz"), "--with-previous"]) == 0
     assert "GT depth (m)" in capsys.readouterr().out

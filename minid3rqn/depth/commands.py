@@ -411,6 +411,10 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
                    help="the training seed: held-out frames use seed + 1000")
     p.add_argument("--test-frames", type=int, default=500)
     p.add_argument("--test-data", default=None)
+    p.add_argument("--with-previous", action="store_true",
+                   help="score only the frames with a previous frame in their flight (all a "
+                        "two-frame model can score), so that one- and two-frame models meet "
+                        "on the same frames")
     p.add_argument("--flip-tta", action="store_true",
                    help="average the disparity with its value on the mirrored frame, "
                         "mirrored back (test-time flip; docs/depth.md section 7)")
@@ -464,13 +468,13 @@ def run_eval_depth(args) -> int:
         except ValueError as e:
             raise SystemExit(f"eval-depth --band: {e}")
     t0 = time.time()
-    results = evaluate(estimator, test, posenet, rows=band)
+    results = evaluate(estimator, test, posenet, rows=band, with_previous=args.with_previous)
     results["seconds"] = round(time.time() - t0, 2)
     if band is not None:
         results["band_rows"] = [int(np.flatnonzero(band)[0]), int(np.flatnonzero(band)[-1])]
     if args.by_depth:
         from .evaluate import errors_by_depth
-        idx = estimator.sequence_targets(test)
+        idx = estimator.sequence_targets(test, with_previous=args.with_previous)
         pred, gt = estimator.predict_sequence(test, idx), test.depth[idx]
         if band is not None:
             pred, gt = pred[:, band], gt[:, band]

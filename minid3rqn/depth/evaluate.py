@@ -158,11 +158,13 @@ class DepthEstimator:
                              f"{prev.shape}")
         return np.concatenate([rgb, prev], axis=-1), single
 
-    def sequence_targets(self, seq: Sequence, idx=None) -> np.ndarray:
+    def sequence_targets(self, seq: Sequence, idx=None, with_previous: bool = False
+                         ) -> np.ndarray:
         """The frames of ``seq`` (of ``idx``, default all) this model can predict: all of
-        them, or for a two-frame model those with a previous frame in their flight."""
+        them, or for a two-frame model (or with ``with_previous``, to score a one-frame
+        model on the same frames) those with a previous frame in their flight."""
         idx = np.arange(len(seq)) if idx is None else np.asarray(idx)
-        if self.in_frames == 1:
+        if self.in_frames == 1 and not with_previous:
             return idx
         return idx[(idx > 0) & (seq.flight[np.maximum(idx - 1, 0)] == seq.flight[idx])]
 
@@ -374,15 +376,18 @@ def horizon_band(K, height: int, above: float, below: float) -> np.ndarray:
 
 
 def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
-             max_frames: int | None = None, rows=None) -> dict:
+             max_frames: int | None = None, rows=None, with_previous: bool = False) -> dict:
     """Depth metrics (median-scaled and speed-scaled) on ``seq``; pose errors if given.
     ``rows``: (H,) bool, score only these image rows (the network sees whole frames;
-    the median scaling uses the scored pixels), e.g. ``horizon_band``."""
+    the median scaling uses the scored pixels), e.g. ``horizon_band``. A two-frame model
+    is scored on the frames with a previous frame in their flight; ``with_previous``
+    scores any model on those frames only."""
     if seq.depth is None:
         raise ValueError("evaluate: the sequence has no GT depth")
-    two = getattr(estimator, "in_frames", 1) == 2       # a two-frame model scores the
-    idx = estimator.sequence_targets(seq) if two else np.arange(len(seq))  # frames with
-    if max_frames and len(idx) > max_frames:            # a previous one in their flight
+    two = getattr(estimator, "in_frames", 1) == 2
+    idx = estimator.sequence_targets(seq, with_previous=with_previous) \
+        if (two or with_previous) else np.arange(len(seq))
+    if max_frames and len(idx) > max_frames:
         idx = idx[np.linspace(0, len(idx) - 1, max_frames).astype(int)]
     pred = estimator.predict_sequence(seq, idx) if two else estimator.predict(seq.rgb[idx])
     gt = seq.depth[idx]
