@@ -54,6 +54,10 @@ def test_a_one_frame_model_widened_predicts_what_it_did(seq, tmp_path):
     rgb = seq.rgb[5:9]
     noise = np.random.default_rng(1).integers(0, 256, rgb.shape, dtype=np.uint8)
     np.testing.assert_allclose(est2.predict(rgb, prev=noise), est1.predict(rgb), rtol=1e-5)
+    # a network that ignores the previous frame is measured to ignore it
+    from minid3rqn.depth.data import Sequence as Seq
+    assert evaluate(est2, Seq(seq.rgb, seq.flight, seq.K, seq.depth, seq.pose)
+                    )["prev_frame_effect"] < 1e-5
     # the file keeps the second frame
     back = DepthEstimator.load(est2.save(tmp_path / "two.npz"))
     assert back.in_frames == 2
@@ -78,6 +82,7 @@ def test_training_reads_the_previous_frame_and_is_scored_where_there_is_one(seq)
     assert len(idx) == len(seq) - (seq.flight.max() + 1)      # all but each flight's first
     assert np.all(seq.flight[idx - 1] == seq.flight[idx])
     assert evaluate(est, seq)["frames"] == len(idx)
+    assert evaluate(est, seq)["prev_frame_effect"] >= 0
     one = DepthEstimator(Trainer(seq, _cfg()).disp, 1.0, {"height": 16, "width": 24})
     assert evaluate(one, seq)["frames"] == len(seq)
     assert evaluate(one, seq, with_previous=True)["frames"] == len(idx)

@@ -381,7 +381,9 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
     ``rows``: (H,) bool, score only these image rows (the network sees whole frames;
     the median scaling uses the scored pixels), e.g. ``horizon_band``. A two-frame model
     is scored on the frames with a previous frame in their flight; ``with_previous``
-    scores any model on those frames only."""
+    scores any model on those frames only. For a two-frame model, ``prev_frame_effect``
+    says how much it reads the previous frame: the mean |ln(depth / depth with the frame
+    itself given as its previous one)|, 0 for a network that ignores it."""
     if seq.depth is None:
         raise ValueError("evaluate: the sequence has no GT depth")
     two = getattr(estimator, "in_frames", 1) == 2
@@ -394,6 +396,10 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
     if rows is not None:
         pred, gt = pred[:, rows], gt[:, rows]
     out = {"frames": int(len(idx))}
+    if two:     # how much the previous frame moves the prediction: the same frames with
+        still = estimator.predict(seq.rgb[idx], prev=seq.rgb[idx])   # no motion at all
+        full = pred if rows is None else estimator.predict_sequence(seq, idx)
+        out["prev_frame_effect"] = float(np.mean(np.abs(np.log(full / still))))
     out.update(depth_metrics(pred, gt))
     out.update({f"{k}_speed_scale": v for k, v in
                 depth_metrics(pred, gt, median_scaling=False).items()})
