@@ -58,6 +58,7 @@ def test_a_one_frame_model_widened_predicts_what_it_did(seq, tmp_path):
     from minid3rqn.depth.data import Sequence as Seq
     assert evaluate(est2, Seq(seq.rgb, seq.flight, seq.K, seq.depth, seq.pose)
                     )["prev_frame_effect"] < 1e-5
+    assert evaluate(est2, seq)["prev_kernel_ratio"] == 0.0      # its kernels are zero
     # the file keeps the second frame
     back = DepthEstimator.load(est2.save(tmp_path / "two.npz"))
     assert back.in_frames == 2

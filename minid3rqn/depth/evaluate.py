@@ -383,7 +383,9 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
     is scored on the frames with a previous frame in their flight; ``with_previous``
     scores any model on those frames only. For a two-frame model, ``prev_frame_effect``
     says how much it reads the previous frame: the mean |ln(depth / depth with the frame
-    itself given as its previous one)|, 0 for a network that ignores it."""
+    itself given as its previous one)|, 0 for a network that ignores it; and
+    ``prev_kernel_ratio``, the size of its first convolution's kernels for the previous
+    frame over those for the frame itself."""
     if seq.depth is None:
         raise ValueError("evaluate: the sequence has no GT depth")
     two = getattr(estimator, "in_frames", 1) == 2
@@ -400,6 +402,8 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
         still = estimator.predict(seq.rgb[idx], prev=seq.rgb[idx])   # no motion at all
         full = pred if rows is None else estimator.predict_sequence(seq, idx)
         out["prev_frame_effect"] = float(np.mean(np.abs(np.log(full / still))))
+        w = estimator.net.enc_a[0].weight.data              # (out, 6, 3, 3): frame, prev
+        out["prev_kernel_ratio"] = float(np.linalg.norm(w[:, 3:]) / np.linalg.norm(w[:, :3]))
     out.update(depth_metrics(pred, gt))
     out.update({f"{k}_speed_scale": v for k, v in
                 depth_metrics(pred, gt, median_scaling=False).items()})

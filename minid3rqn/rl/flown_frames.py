@@ -48,11 +48,10 @@ def flown_poses(policy, flights: Flights, max_steps: int) -> list[np.ndarray]:
         steps.append((safe, obs["flights"].poses.copy()))
 
     run_flights(policy, flights, max_steps, record=record)
-    poses = []
-    for k in range(flights.n):
-        after = [p[k] for safe, p in steps if safe[k]]
-        poses.append(np.stack([starts[k]] + after))
-    return poses
+    safe = np.stack([s for s, _ in steps])                     # (T, n)
+    after = np.stack([p for _, p in steps])                    # (T, n, 3)
+    # a flight's safe steps come first (it stops at its first unsafe one)
+    return [np.concatenate([starts[k][None], after[safe[:, k], k]]) for k in range(flights.n)]
 
 
 def collect_flown(policy, scenario: str = "basic", n_frames: int = 15000, seed: int = 0,
