@@ -239,6 +239,62 @@ def test_mirrored_policy_flies_the_mirrored_view(window):
         QNetPolicy(build_qnet("d3rqn", rng=0, width=8, n_actions=3), mirror=True)
 
 
+def test_mirrored_batch_flips_the_chosen_windows_only():
+    """SequenceBatch.mirrored: the chosen windows' frames flipped along the width, their
+    actions and teacher labels mapped to the mirror images; the rest, and rewards,
+    terminals and mask, untouched; mirroring twice gives the batch back."""
+    from minid3rqn.rl.replay import SequenceBatch
+    from minid3rqn.world import ACTIONS
+    perm = mirror_permutation(ACTIONS)
+    rng = np.random.default_rng(0)
+    L, B, A = 3, 4, len(ACTIONS)
+    batch = SequenceBatch(obs=rng.random((L + 1, B, 1, 2, 5)).astype(np.float32),
+                          actions=rng.integers(0, A, (L, B)), rewards=rng.random((L, B)),
+                          terminals=np.zeros((L, B)), mask=np.ones((L, B)),
+                          labels=rng.random((L, B, A)))
+    which = np.array([True, False, True, False])
+    m = batch.mirrored(which, perm)
+    np.testing.assert_array_equal(m.obs[:, which], batch.obs[:, which][..., ::-1])
+    np.testing.assert_array_equal(m.obs[:, ~which], batch.obs[:, ~which])
+    np.testing.assert_array_equal(m.actions[:, which], perm[batch.actions[:, which]])
+    np.testing.assert_array_equal(m.actions[:, ~which], batch.actions[:, ~which])
+    # the label of action a is the teacher's Q-value of a's mirror image
+    np.testing.assert_array_equal(m.labels[:, which], batch.labels[:, which][..., perm])
+    np.testing.assert_array_equal(m.labels[:, ~which], batch.labels[:, ~which])
+    assert m.rewards is batch.rewards and m.mask is batch.mask
+    back = m.mirrored(which, perm)
+    for name in ("obs", "actions", "labels"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(batch, name))
+    # the original is not changed, and a batch without labels stays without
+    assert batch.mirrored(which, perm).obs is not batch.obs
+    nolabels = SequenceBatch(batch.obs, batch.actions, batch.rewards, batch.terminals,
+                             batch.mask)
+    assert nolabels.mirrored(which, perm).labels is None
+    with pytest.raises(ValueError, match="which must be a bool mask of the 4 windows"):
+        batch.mirrored(np.array([True, False]), perm)
+
+
+def test_mirrored_frames_give_the_mirrored_q_values():
+    """What the augmentation teaches is consistent: a net that is exactly mirror-
+    symmetric gives, on a mirrored window, the Q-values of the window with each action
+    replaced by its mirror image -- the labels SequenceBatch.mirrored writes."""
+    from minid3rqn.rl.replay import SequenceBatch
+    from minid3rqn.world import ACTIONS
+    perm = mirror_permutation(ACTIONS)
+    net = build_qnet("d3rqn", rng=0, width=8)
+    frames = np.random.default_rng(1).random((5, 3, 1, H, W)).astype(np.float32)
+
+    def symmetric_q(obs):           # the plain net averaged with its mirrored twin
+        q, _ = net(obs)
+        qm, _ = net(np.ascontiguousarray(obs[..., ::-1]))
+        return 0.5 * (q.data + qm.data[..., perm])
+    q = symmetric_q(frames)
+    batch = SequenceBatch(frames, np.zeros((4, 3), np.int64), np.zeros((4, 3)),
+                          np.zeros((4, 3)), np.ones((4, 3)), labels=q[:4])
+    m = batch.mirrored(np.ones(3, bool), perm)
+    np.testing.assert_allclose(symmetric_q(m.obs)[:4], m.labels, rtol=1e-5, atol=1e-6)
+
+
 def test_frame_stacker():
     fs = FrameStacker(2, 3, (1, 1))
     fs.reset([0, 1], np.array([[[1.0]], [[5.0]]]))

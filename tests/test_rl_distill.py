@@ -165,3 +165,51 @@ def test_bad_teachers_get_clear_errors(tmp_path):
                          str(tmp_path / "cli")])
     with pytest.raises(SystemExit, match="--teachers.*not a file"):
         commands.run_train_agent(args)
+
+
+def test_mirror_augmentation_is_seeded_resumable_and_leaves_other_runs_alone(tmp_path):
+    """--mirror-augment: the run resumes exactly and repeats from its seed; it learns
+    from mirrored windows (a different student from the same seed without it), and its
+    random stream does not move the runs without it (they fly the same flights)."""
+    cfg = small_config(mirror_augment=True)
+    a = Distiller(cfg, tmp_path / "a", progress=False)
+    a.run(until=48)
+    a.save_checkpoint()
+    b = Distiller.resume(tmp_path / "a", progress=False)
+    assert b.cfg.mirror_augment and b.mirror_of is not None
+    a.run()
+    b.run()
+    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
+        np.testing.assert_array_equal(p.data, q.data)
+    plain = Distiller(small_config(), tmp_path / "p", progress=False)
+    plain.run()
+    assert plain.mirror_of is None
+    assert any(not np.array_equal(p.data, q.data)
+               for p, q in zip(a.agent.online.parameters(), plain.agent.online.parameters()))
+    # the augmentation draws from a stream of its own: built from one seed, the two
+    # runs start with the same weights and the same action and replay streams
+    fresh = [Distiller(small_config(mirror_augment=m), tmp_path / f"f{m}", progress=False)
+             for m in (False, True)]
+    for p, q in zip(*(f.agent.online.parameters() for f in fresh)):
+        np.testing.assert_array_equal(p.data, q.data)
+    assert fresh[0].rng.bit_generator.state == fresh[1].rng.bit_generator.state
+    assert fresh[0].replay.rng.bit_generator.state == fresh[1].replay.rng.bit_generator.state
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    args = p.parse_args(["--smoke", "--mirror-augment", "--out", str(tmp_path / "cli")])
+    assert commands.config_from_args(args).mirror_augment
+
+
+def test_q_learning_with_mirror_augmentation_resumes_exactly(tmp_path):
+    cfg = TrainConfig(total_steps=96, learning_starts=32, n_envs=4, log_every=32,
+                      checkpoint_every=48, hidden=16, replay_capacity=1000,
+                      mirror_augment=True, flights=FlightsConfig(n_worlds=2))
+    a = Trainer(cfg, tmp_path / "a", progress=False)
+    a.run(until=48)
+    a.save_checkpoint()
+    b = Trainer.resume(tmp_path / "a", progress=False)
+    a.run()
+    b.run()
+    assert a.agent.updates > 0
+    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
+        np.testing.assert_array_equal(p.data, q.data)

@@ -183,6 +183,10 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                    help="probability of flying the teacher's action at the start (--teachers)")
     p.add_argument("--teacher-mix-steps", type=int, default=d.teacher_mix_steps,
                    help="transitions over which that probability falls to 0 (--teachers)")
+    p.add_argument("--mirror-augment", action="store_true",
+                   help="training augmentation (ours): learn from each sampled window "
+                        "mirrored left-right with probability 1/2 (frames flipped, actions "
+                        "and teacher labels mapped to their mirror images)")
     p.add_argument("--out", default=None, help="run folder (default runs/agent/<name>)")
     p.add_argument("--resume", action="store_true")
     p.add_argument("--ship", default=None, help="also copy the model to minid3rqn/models/NAME.npz")
@@ -201,7 +205,8 @@ def config_from_args(args):
                       replay_capacity=args.replay, hidden=args.hidden, depth=args.depth,
                       init_model=args.init_model, eps_start=args.eps_start,
                       teachers=args.teachers, teacher_mix=args.teacher_mix,
-                      teacher_mix_steps=args.teacher_mix_steps)
+                      teacher_mix_steps=args.teacher_mix_steps,
+                      mirror_augment=args.mirror_augment)
     if args.conv_channels is not None:
         try:
             cfg.conv_channels = [int(c) for c in str(args.conv_channels).split(",")]

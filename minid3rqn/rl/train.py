@@ -58,6 +58,8 @@ class TrainConfig:
     teachers: str = ""             # '+'-joined Q-net files; set -> learn the teacher's Q-values
     teacher_mix: float = 0.5       # probability of flying the teacher's action at the start,
     teacher_mix_steps: int = 10_000  # decayed linearly to 0 over this many transitions
+    mirror_augment: bool = False   # ours: learn from each sampled window mirrored left-right
+                                   # with probability 1/2 (SequenceBatch.mirrored)
     agent: AgentConfig = field(default_factory=AgentConfig)
     flights: FlightsConfig = field(default_factory=FlightsConfig)
 
@@ -131,6 +133,13 @@ class Trainer:
             self.agent.target.copy_from(self.agent.online)
         self.replay = self.make_replay(replay_seed)
         self.rng = np.random.default_rng(act_seed)
+        # a fifth stream for the mirror augmentation (the first four, hence every run
+        # without it, are unchanged by its existence)
+        self.aug_rng = np.random.default_rng(ss.spawn(1)[0])
+        self.mirror_of = None
+        if cfg.mirror_augment:
+            from .policies import mirror_permutation
+            self.mirror_of = mirror_permutation(self.flights.actions)
         self.steps = 0
         self.update_credit = 0.0
         self.episodes = 0
@@ -197,6 +206,9 @@ class Trainer:
             while self.update_credit >= 1.0:
                 self.update_credit -= 1.0
                 batch = self.replay.sample(cfg.batch_size, cfg.seq_len, cfg.stack)
+                if self.mirror_of is not None:
+                    which = self.aug_rng.random(batch.actions.shape[1]) < 0.5
+                    batch = batch.mirrored(which, self.mirror_of)
                 info = self.learn(batch)
                 self._window["loss"].append(info["loss"])
                 self._window["q"].append(info["q_mean"])
@@ -284,7 +296,7 @@ class Trainer:
         meta = {"config": self.cfg.to_dict(), "steps": self.steps, "episodes": self.episodes,
                 "update_credit": self.update_credit, "curve": self.curve,
                 "window": self._window, "rng": _rng_state(self.rng),
-                "replay_rng": _rng_state(self.replay.rng),
+                "replay_rng": _rng_state(self.replay.rng), "aug_rng": _rng_state(self.aug_rng),
                 "flights_meta": self.flights.meta_state()}
         save_npz(path, arrays, meta)
         self.save_model(self.out / "model.npz")
@@ -330,6 +342,8 @@ class Trainer:
         tr._window = meta["window"]
         _set_rng_state(tr.rng, meta["rng"])
         _set_rng_state(tr.replay.rng, meta["replay_rng"])
+        if "aug_rng" in meta:                # checkpoints before the fourteenth session
+            _set_rng_state(tr.aug_rng, meta["aug_rng"])
         tr._started = True
         return tr
 
