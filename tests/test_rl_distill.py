@@ -197,7 +197,11 @@ def test_mirror_augmentation_is_seeded_resumable_and_leaves_other_runs_alone(tmp
     p = argparse.ArgumentParser()
     commands.add_arguments_train_agent(p)
     args = p.parse_args(["--smoke", "--mirror-augment", "--out", str(tmp_path / "cli")])
-    assert commands.config_from_args(args).mirror_augment
+    got = commands.config_from_args(args)
+    assert got.mirror_augment and not got.teacher_mirror
+    args = p.parse_args(["--smoke", "--teacher-mirror", "--out", str(tmp_path / "cli")])
+    got = commands.config_from_args(args)
+    assert got.teacher_mirror and not got.mirror_augment
 
 
 def test_q_learning_with_mirror_augmentation_resumes_exactly(tmp_path):
@@ -212,4 +216,36 @@ def test_q_learning_with_mirror_augmentation_resumes_exactly(tmp_path):
     b.run()
     assert a.agent.updates > 0
     for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
+        np.testing.assert_array_equal(p.data, q.data)
+
+
+def test_a_mirrored_teacher_is_the_nets_and_their_mirror_images(tmp_path):
+    """--teacher-mirror: the teacher ensemble holds each net and its mirrored twin, so its
+    Q-values on a mirrored view are its Q-values on the view, mirrored (exactly
+    symmetric); the run resumes exactly with the twins' memories."""
+    from minid3rqn.rl.policies import EnsemblePolicy, mirror_permutation
+    from minid3rqn.world import ACTIONS
+    shape, n = (32, 104), 5
+    t = load_teacher(TEACHER, shape, n, mirror=True)
+    assert isinstance(t, EnsemblePolicy) and len(t.members) == 2
+    assert [m.mirror for m in t.members] == [False, True]
+    assert len(load_teacher(TEACHER + "+" + TEACHER, shape, n, mirror=True).members) == 4
+    perm = mirror_permutation(ACTIONS)
+    frames = np.random.default_rng(0).random((3, 2, *shape)).astype(np.float32)
+    a, b = (load_teacher(TEACHER, shape, n, mirror=True) for _ in range(2))
+    a.reset(2)
+    b.reset(2)
+    for k in range(3):
+        a.act({"frames": frames[k]}, started=np.full(2, k == 0))
+        b.act({"frames": np.ascontiguousarray(frames[k][..., ::-1])},
+              started=np.full(2, k == 0))
+        np.testing.assert_allclose(b.last_q, a.last_q[:, perm], rtol=1e-5, atol=1e-6)
+    cfg = small_config(teacher_mirror=True)
+    d = Distiller(cfg, tmp_path / "a", progress=False)
+    d.run(until=48)
+    d.save_checkpoint()
+    e = Distiller.resume(tmp_path / "a", progress=False)
+    d.run()
+    e.run()
+    for p, q in zip(d.agent.online.parameters(), e.agent.online.parameters()):
         np.testing.assert_array_equal(p.data, q.data)

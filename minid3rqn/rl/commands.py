@@ -183,6 +183,9 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                    help="probability of flying the teacher's action at the start (--teachers)")
     p.add_argument("--teacher-mix-steps", type=int, default=d.teacher_mix_steps,
                    help="transitions over which that probability falls to 0 (--teachers)")
+    p.add_argument("--teacher-mirror", action="store_true",
+                   help="each teacher net also flies the mirrored view: the teacher is the "
+                        "ensemble of the nets and their mirror images (--teachers; ours)")
     p.add_argument("--mirror-augment", action="store_true",
                    help="training augmentation (ours): learn from each sampled window "
                         "mirrored left-right with probability 1/2 (frames flipped, actions "
@@ -206,6 +209,7 @@ def config_from_args(args):
                       init_model=args.init_model, eps_start=args.eps_start,
                       teachers=args.teachers, teacher_mix=args.teacher_mix,
                       teacher_mix_steps=args.teacher_mix_steps,
+                      teacher_mirror=args.teacher_mirror,
                       mirror_augment=args.mirror_augment)
     if args.conv_channels is not None:
         try:

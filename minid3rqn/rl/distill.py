@@ -77,9 +77,13 @@ class LabelledReplay(EpisodeReplay):
         return {**super().state_dict(), "labels": self.labels}
 
 
-def load_teacher(spec: str, frame_shape, n_actions: int):
+def load_teacher(spec: str, frame_shape, n_actions: int, mirror: bool = False):
     """'A.npz' or 'A.npz+B.npz+...' -> a QNetPolicy or an EnsemblePolicy, checked to
-    read frames of ``frame_shape`` and to score ``n_actions`` actions."""
+    read frames of ``frame_shape`` and to score ``n_actions`` actions.
+
+    ``mirror``: every net also flies the mirrored view (``QNetPolicy.mirrored``), and the
+    teacher is the ensemble of all of them, twice as many members (``evaluate --mirror``
+    for a teacher; our addition)."""
     from .policies import EnsemblePolicy, QNetPolicy
     parts = str(spec).split("+")
     if not spec or any(not p for p in parts):
@@ -96,6 +100,8 @@ def load_teacher(spec: str, frame_shape, n_actions: int):
             raise ValueError(f"teachers: {p!r} reads {got[0]} frames and scores {got[1]} "
                              f"actions; the student needs {tuple(frame_shape)} and {n_actions}")
         members.append(pol)
+    if mirror:
+        members += [m.mirrored() for m in members]
     return members[0] if len(members) == 1 else EnsemblePolicy(members, name="teacher")
 
 
@@ -115,7 +121,8 @@ class Distiller(Trainer):
             raise ValueError(f"Distiller: teacher_mix_steps must be >= 1; got "
                              f"{cfg.teacher_mix_steps}")
         super().__init__(cfg, out_dir, depth_estimator, progress)
-        self.teacher = load_teacher(cfg.teachers, self.frame_shape, self.flights.n_actions)
+        self.teacher = load_teacher(cfg.teachers, self.frame_shape, self.flights.n_actions,
+                                    mirror=cfg.teacher_mirror)
         self.teacher.reset(cfg.n_envs)
         self.teacher_started = np.ones(cfg.n_envs, bool)
         self._window["agree"] = []

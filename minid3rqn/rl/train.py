@@ -58,6 +58,7 @@ class TrainConfig:
     teachers: str = ""             # '+'-joined Q-net files; set -> learn the teacher's Q-values
     teacher_mix: float = 0.5       # probability of flying the teacher's action at the start,
     teacher_mix_steps: int = 10_000  # decayed linearly to 0 over this many transitions
+    teacher_mirror: bool = False   # ours: each teacher net also flies the mirrored view
     mirror_augment: bool = False   # ours: learn from each sampled window mirrored left-right
                                    # with probability 1/2 (SequenceBatch.mirrored)
     agent: AgentConfig = field(default_factory=AgentConfig)
