@@ -249,3 +249,15 @@ def test_a_mirrored_teacher_is_the_nets_and_their_mirror_images(tmp_path):
     e.run()
     for p, q in zip(d.agent.online.parameters(), e.agent.online.parameters()):
         np.testing.assert_array_equal(p.data, q.data)
+
+
+def test_mirror_augmentation_needs_a_symmetric_action_table(tmp_path, monkeypatch):
+    """A classroom action table without mirror images gets a clear error naming the flag."""
+    import minid3rqn.rl.flights as flights_module
+    monkeypatch.setattr(flights_module, "ACTIONS",
+                        np.array([[2.0, 0.0], [2.0, 0.3], [2.0, 0.6]]))
+    cfg = TrainConfig(total_steps=32, learning_starts=16, n_envs=2, hidden=16,
+                      replay_capacity=200, mirror_augment=True,
+                      flights=FlightsConfig(n_worlds=1))
+    with pytest.raises(ValueError, match=r"--mirror-augment.*symmetric action table"):
+        Trainer(cfg, tmp_path, progress=False)

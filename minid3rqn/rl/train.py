@@ -140,7 +140,11 @@ class Trainer:
         self.mirror_of = None
         if cfg.mirror_augment:
             from .policies import mirror_permutation
-            self.mirror_of = mirror_permutation(self.flights.actions)
+            try:
+                self.mirror_of = mirror_permutation(self.flights.actions)
+            except ValueError as e:
+                raise ValueError(f"TrainConfig.mirror_augment (--mirror-augment) needs a "
+                                 f"symmetric action table: {e}") from None
         self.steps = 0
         self.update_credit = 0.0
         self.episodes = 0
