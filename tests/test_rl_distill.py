@@ -25,6 +25,21 @@ def small_config(**kw) -> TrainConfig:
     return TrainConfig(**base)
 
 
+def run_and_resume(cls, cfg, folder, until):
+    """Run ``cls(cfg)`` to ``until``, checkpoint, resume a twin from the checkpoint, run
+    both to the end and assert the same weights; return the first run."""
+    a = cls(cfg, folder, progress=False)
+    a.run(until=until)
+    a.save_checkpoint()
+    b = cls.resume(folder, progress=False)
+    a.run()
+    b.run()
+    assert a.agent.updates > 0 and a.steps == cfg.total_steps
+    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
+        np.testing.assert_array_equal(p.data, q.data)
+    return a
+
+
 def test_labelled_replay_labels_stay_with_their_frames():
     """Frame k carries label k, through episode ends and ring wrap-around."""
     rng = np.random.default_rng(0)
@@ -123,16 +138,7 @@ def test_distillation_lowers_the_loss_on_a_fixed_batch(tmp_path):
 
 
 def test_distillation_smoke_and_exact_resume(tmp_path):
-    cfg = small_config()
-    a = Distiller(cfg, tmp_path / "a", progress=False)
-    a.run(until=48)
-    a.save_checkpoint()
-    b = Distiller.resume(tmp_path / "a", progress=False)
-    a.run()
-    b.run()
-    assert a.agent.updates > 0 and a.steps == 96
-    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
-        np.testing.assert_array_equal(p.data, q.data)
+    a = run_and_resume(Distiller, small_config(), tmp_path / "a", until=48)
     assert {"teacher_mix", "agree"} <= set(a.curve[-1])
     assert a.curve[-1]["teacher_mix"] == 0.0
 
@@ -171,16 +177,9 @@ def test_mirror_augmentation_is_seeded_resumable_and_leaves_other_runs_alone(tmp
     """--mirror-augment: the run resumes exactly and repeats from its seed; it learns
     from mirrored windows (a different student from the same seed without it), and its
     random stream does not move the runs without it (they fly the same flights)."""
-    cfg = small_config(mirror_augment=True)
-    a = Distiller(cfg, tmp_path / "a", progress=False)
-    a.run(until=48)
-    a.save_checkpoint()
-    b = Distiller.resume(tmp_path / "a", progress=False)
-    assert b.cfg.mirror_augment and b.mirror_of is not None
-    a.run()
-    b.run()
-    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
-        np.testing.assert_array_equal(p.data, q.data)
+    a = run_and_resume(Distiller, small_config(mirror_augment=True), tmp_path / "a", until=48)
+    assert a.mirror_of is not None
+    assert Distiller.resume(tmp_path / "a", progress=False).cfg.mirror_augment
     plain = Distiller(small_config(), tmp_path / "p", progress=False)
     plain.run()
     assert plain.mirror_of is None
@@ -208,15 +207,7 @@ def test_q_learning_with_mirror_augmentation_resumes_exactly(tmp_path):
     cfg = TrainConfig(total_steps=96, learning_starts=32, n_envs=4, log_every=32,
                       checkpoint_every=48, hidden=16, replay_capacity=1000,
                       mirror_augment=True, flights=FlightsConfig(n_worlds=2))
-    a = Trainer(cfg, tmp_path / "a", progress=False)
-    a.run(until=48)
-    a.save_checkpoint()
-    b = Trainer.resume(tmp_path / "a", progress=False)
-    a.run()
-    b.run()
-    assert a.agent.updates > 0
-    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
-        np.testing.assert_array_equal(p.data, q.data)
+    run_and_resume(Trainer, cfg, tmp_path / "a", until=48)
 
 
 def test_a_mirrored_teacher_is_the_nets_and_their_mirror_images(tmp_path):
@@ -240,15 +231,7 @@ def test_a_mirrored_teacher_is_the_nets_and_their_mirror_images(tmp_path):
         b.act({"frames": np.ascontiguousarray(frames[k][..., ::-1])},
               started=np.full(2, k == 0))
         np.testing.assert_allclose(b.last_q, a.last_q[:, perm], rtol=1e-5, atol=1e-6)
-    cfg = small_config(teacher_mirror=True)
-    d = Distiller(cfg, tmp_path / "a", progress=False)
-    d.run(until=48)
-    d.save_checkpoint()
-    e = Distiller.resume(tmp_path / "a", progress=False)
-    d.run()
-    e.run()
-    for p, q in zip(d.agent.online.parameters(), e.agent.online.parameters()):
-        np.testing.assert_array_equal(p.data, q.data)
+    run_and_resume(Distiller, small_config(teacher_mirror=True), tmp_path / "a", until=48)
 
 
 def test_mirror_augmentation_needs_a_symmetric_action_table(tmp_path, monkeypatch):
