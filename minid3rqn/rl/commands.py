@@ -37,6 +37,46 @@ def load_depth_estimator(path, flip: bool = False):
 
 HORIZON_DEFAULT = "the depth model's, else the Q-nets', else the middle row"
 
+SCENE_HELP = ("ours: change a parameter of the scenario's world generator, KEY=VALUE, or "
+              "KEY=LO,HI for a range (repeatable; the keys and defaults are "
+              "world.scenarios.DEFAULTS), e.g. --scene min_gap=2.0 --scene n_obstacles=16,20")
+
+
+def parse_scene(items, scenario: str, flag: str = "--scene") -> dict | None:
+    """``["min_gap=2.0", "n_obstacles=16,20"]`` -> ``{"min_gap": 2.0, "n_obstacles":
+    [16, 20]}``, each value shaped and typed like the scenario's default (a range stays a
+    range: one number gives [v, v]); None when ``items`` is empty. A bad item is a
+    SystemExit naming ``flag``, the item and what was expected."""
+    from ..world.scenarios import DEFAULTS, SCENARIOS
+    if not items:
+        return None
+    if scenario not in SCENARIOS:
+        raise SystemExit(f"{flag}: unknown scenario {scenario!r}; expected one of {SCENARIOS}")
+    defaults, out = DEFAULTS[scenario], {}
+    for item in items:
+        key, eq, text = str(item).partition("=")
+        if not eq or key not in defaults:
+            raise SystemExit(f"{flag}: expected KEY=VALUE with KEY one of "
+                             f"{sorted(defaults)} (scenario {scenario!r}); got {item!r}")
+        default = defaults[key]
+        kind = type(default[0]) if isinstance(default, tuple) else type(default)
+        try:
+            values = [kind(float(v)) if kind is float else int(v) for v in text.split(",")]
+        except ValueError:
+            values = []
+        if isinstance(default, tuple):
+            if len(values) == 1:
+                values = values * 2
+            ok = len(values) == 2 and values[0] <= values[1]
+        else:
+            ok = len(values) == 1
+        if not ok or any(v < 0 for v in values):
+            shape = "LO,HI (or one value)" if isinstance(default, tuple) else "one value"
+            raise SystemExit(f"{flag}: {key} takes {shape}, {kind.__name__}s >= 0 (default "
+                             f"{default}); got {text!r}")
+        out[key] = values if isinstance(default, tuple) else values[0]
+    return out
+
 
 def _trained_flights(meta: dict | None) -> dict:
     """The FlightsConfig a Q-net was trained with, as saved in its file ({} if none)."""
@@ -169,6 +209,8 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                    help="what the Q-net reads: 'depth' (the paper's depth maps, / 10 m) or "
                         "'inverse' (0.5 m / depth; ours). Default: the --init-model's, else "
                         "depth")
+    p.add_argument("--scene", action="append", default=[], metavar="KEY=VALUE",
+                   help=SCENE_HELP + "; the training worlds only")
     p.add_argument("--depth-noise", type=float, default=0.0,
                    help="training augmentation (ours): std of a smooth random error in log "
                         "depth put on every frame the Q-net sees (0: none; "
@@ -229,6 +271,7 @@ def config_from_args(args):
             setattr(cfg, k, v)
         cfg.flights = FlightsConfig(n_worlds=2)
     cfg.flights.depth_noise = args.depth_noise
+    cfg.flights.scene = parse_scene(args.scene, args.scenario, "train-agent --scene")
     return cfg
 
 
@@ -364,6 +407,8 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
                    help="Q-nets: each also flies the left-right mirrored view, and the "
                         "policy is greedy on the mean Q-values of all (a free two-member "
                         "ensemble per net; docs/d3rqn.md section 10)")
+    p.add_argument("--scene", action="append", default=[], metavar="KEY=VALUE",
+                   help=SCENE_HELP)
     add_argument_horizon_row(p, HORIZON_DEFAULT)
     p.add_argument("--json", default=None, help="append results to this JSON-lines file")
     p.add_argument("--quiet", action="store_true")
@@ -374,6 +419,7 @@ def run_evaluate(args) -> int:
     from .policies import ReactivePolicy
     from .flights import FlightsConfig
     est = _estimator_for(args.depth, args.depth_model, args.scenario, args.flip_tta)
+    scene = parse_scene(args.scene, args.scenario, "evaluate --scene")
     for spec in args.policies:
         pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES
                           else None, mirror=args.mirror)
@@ -383,7 +429,8 @@ def run_evaluate(args) -> int:
             print(warning, file=sys.stderr, flush=True)
         if isinstance(pol, ReactivePolicy):      # it reads the rows around the horizon
             pol.horizon_row = row
-        cfg = FlightsConfig(horizon_row=row, encoding=encoding_for("evaluate", None, [pol]))
+        cfg = FlightsConfig(horizon_row=row, encoding=encoding_for("evaluate", None, [pol]),
+                            scene=scene)
         res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
                               args.chunk, args.depth, est, progress=not args.quiet,
                               workers=args.workers, flights_config=cfg)
@@ -394,6 +441,7 @@ def run_evaluate(args) -> int:
                                     "depth_flip": bool(est is not None and est.flip),
                                     "mirror": bool(args.mirror and spec not in BASELINES),
                                     "horizon_row": row, "encoding": cfg.encoding,
+                                    "scene": scene,
                                     "unfinished": warning is not None,
                                     "command": _command_line()}) + "\n")
     return 0

@@ -38,6 +38,7 @@ import numpy as np
 
 from ..world import Camera, SceneBatch, make_scene, render_batch, sample_start_pose
 from ..world.distance import nearest_distance_batch
+from ..world.scenarios import DEFAULTS
 from ..world.kinematics import (ACTION_INTERVAL, ACTIONS, SAFE_DISTANCE, n_substeps,
                                 paper_reward, substep_poses)
 from ..world.renderer import render_depth_batch
@@ -59,6 +60,9 @@ class FlightsConfig:
                                  # (inverse depth; the module docstring)
     depth_noise: float = 0.0     # ours: std of a smooth random error in log depth put on
                                  # every observed frame (0: none; Flights.depth_error)
+    scene: dict | None = None    # ours: scenario parameters replacing the defaults in
+                                 # make_scene (world.scenarios.DEFAULTS), e.g.
+                                 # {"min_gap": 2.0}; None: the scenario as it is
 
 
 ENCODINGS = ("depth", "inverse")
@@ -126,6 +130,16 @@ class Flights:
                 or not 0.0 <= noise < 1.0:
             raise ValueError(f"Flights: config.depth_noise (std of the log-depth error) must "
                              f"be a number in [0, 1); got {noise!r}")
+        scene = self.cfg.scene
+        if scene is not None:
+            if not isinstance(scene, dict):
+                raise ValueError(f"Flights: config.scene must be a dict of scenario "
+                                 f"parameters or None; got {type(scene).__name__}")
+            unknown = sorted(set(scene) - set(DEFAULTS.get(scenario, scene)))
+            if unknown:
+                raise ValueError(f"Flights: config.scene has unknown parameter(s) {unknown} "
+                                 f"for scenario {scenario!r}; expected some of "
+                                 f"{sorted(DEFAULTS[scenario])}")
         n_worlds = self.cfg.n_worlds
         if isinstance(n_worlds, bool) or not isinstance(n_worlds, (int, np.integer)) \
                 or n_worlds < 1:
@@ -151,7 +165,8 @@ class Flights:
         self.rng = np.random.default_rng(seed)
         base = TEST_SEEDS if self.cfg.test_worlds else TRAIN_SEEDS
         self.world_seeds = base + self.rng.choice(1_000_000, size=self.cfg.n_worlds, replace=False)
-        self.worlds = [make_scene(scenario, int(s)) for s in self.world_seeds]
+        self.worlds = [make_scene(scenario, int(s), **(self.cfg.scene or {}))
+                       for s in self.world_seeds]
         self.world_of = np.zeros(self.n, dtype=np.int64)
         self.poses = np.zeros((self.n, 3))
         self.t = np.zeros(self.n, dtype=np.int64)
