@@ -431,3 +431,39 @@ def test_conv_channels_widen_the_torso_and_are_checked(tmp_path):
                              "--out", str(tmp_path / "bad")])
         with pytest.raises(SystemExit, match="--conv-channels"):
             commands.run_train_agent(args)
+
+
+def test_scene_overrides_change_the_worlds_and_travel_with_the_run(tmp_path):
+    """--scene KEY=VALUE: the flights' worlds are generated with the changed parameters
+    (here: how many obstacles), bad keys and values are refused naming the flag, and the
+    training config records it so a resumed run flies the same worlds."""
+    parse = commands.parse_scene
+    assert parse([], "basic") is None
+    assert parse(["min_gap=2", "n_obstacles=4,6", "wall_margin=1.5"], "basic") == {
+        "min_gap": 2.0, "n_obstacles": [4, 6], "wall_margin": 1.5}
+    assert parse(["n_obstacles=5"], "basic") == {"n_obstacles": [5, 5]}   # one value: a range of one
+    for bad, says in (("gap=2", "KEY=VALUE"), ("min_gap", "KEY=VALUE"),
+                      ("min_gap=two", "min_gap takes one value"),
+                      ("min_gap=1,2", "min_gap takes one value"),
+                      ("n_obstacles=6,4", "LO,HI"), ("n_obstacles=4.5", "LO,HI"),
+                      ("min_gap=-1", "min_gap takes")):
+        with pytest.raises(SystemExit, match=f"train-agent --scene.*{says}"):
+            parse([bad], "basic", "train-agent --scene")
+    few = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene=parse(
+        ["n_obstacles=2"], "basic")))
+    many = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene=parse(
+        ["n_obstacles=9"], "basic")))
+    assert few.world_seeds.tolist() == many.world_seeds.tolist()   # same seeds, other worlds
+    count = [[len(w.circle_radii) + len(w.poly_verts) for w in fl.worlds] for fl in (few, many)]
+    assert count == [[2, 2], [9, 9]]
+    with pytest.raises(ValueError, match="config.scene has unknown parameter.*'gap'"):
+        Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene={"gap": 2.0}))
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    args = p.parse_args(["--smoke", "--quiet", "--scene", "n_obstacles=3", "--out",
+                         str(tmp_path / "run")])
+    assert commands.run_train_agent(args) == 0
+    meta = QNetPolicy.load(tmp_path / "run" / "model.npz").meta
+    assert meta["train_config"]["flights"]["scene"] == {"n_obstacles": [3, 3]}
+    tr = Trainer.resume(tmp_path / "run", progress=False)
+    assert [len(w.circle_radii) + len(w.poly_verts) for w in tr.flights.worlds] == [3, 3]
