@@ -12,6 +12,7 @@ from minid3rqn.world import (ACTIONS, SCENARIOS, Camera, DroneEnv, SceneBatch, V
                              pose_to_camera_transform, pymunk_nearest_distance, random_policy,
                              relative_transform, render, render_batch, sample_start_pose,
                              straight_policy, topdown)
+from minid3rqn.world.distance import nearest_distance_by_kind
 from minid3rqn.world.geometry import backproject, bilinear_sample_numpy
 from minid3rqn.world.kinematics import integrate_arc, substep_poses
 from minid3rqn.world.renderer import cast_columns
@@ -136,6 +137,17 @@ def test_nearest_distance_matches_pymunk(scenes, name):
     both = nearest_distance_batch(batch, np.stack([xy[:50], xy[50:100]]))
     np.testing.assert_allclose(both[1], d[50:100], atol=1e-12)
     np.testing.assert_allclose(both[0], nearest_distance(scenes["basic"], xy[:50]), atol=1e-12)
+    # one distance per kind of obstacle; their minimum is the nearest distance, and each
+    # kind's is pymunk's over the shapes of that kind alone
+    kinds = nearest_distance_by_kind(batch, np.stack([xy[:50], xy[50:100]]))
+    assert kinds.shape == (2, 50, 3)
+    np.testing.assert_allclose(kinds.min(-1), both, atol=1e-12)
+    if len(scene.circle_radii):
+        round_only = np.hypot(*(xy[50:100, None] - scene.circle_centres).transpose(2, 0, 1))
+        np.testing.assert_allclose(kinds[1, :, 0], (round_only - scene.circle_radii).min(1),
+                                   atol=1e-12)
+    with pytest.raises(ValueError, match="nearest_distance_by_kind: xy must be"):
+        nearest_distance_by_kind(batch, xy[:50])
 
 
 # ----------------------------------------------------------------------------- renderer

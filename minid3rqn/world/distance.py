@@ -100,6 +100,28 @@ def nearest_distance_batch(batch: SceneBatch, xy) -> np.ndarray:
                             batch.poly, xy)
 
 
+KINDS = ("round", "polygon", "wall")      # circles; boxes and buildings; walls
+
+
+def nearest_distance_by_kind(batch: SceneBatch, xy) -> np.ndarray:
+    """Like ``nearest_distance_batch``, one distance per kind of obstacle: xy (N, M, 2)
+    -> (N, M, 3), the signed distance to the nearest circle, polygon and wall
+    (``KINDS``; a world without one kind reads a very large distance there). The
+    minimum over the last axis is ``nearest_distance_batch``."""
+    if not isinstance(batch, SceneBatch):
+        raise TypeError(f"nearest_distance_by_kind: batch must be a SceneBatch; got "
+                        f"{type(batch).__name__}")
+    xy = _check_xy(xy, "nearest_distance_by_kind")
+    if xy.ndim != 3 or xy.shape[0] != len(batch):
+        raise ValueError(f"nearest_distance_by_kind: xy must be (N={len(batch)}, M, 2); got "
+                         f"shape {xy.shape}")
+    c, r, a, b, poly = batch.circ_c, batch.circ_r, batch.wall_a, batch.wall_b, batch.poly
+    no_c, no_r, no_s, no_p = c[:, :0], r[:, :0], a[:, :0], poly[:, :0]
+    return np.stack([_signed_distance(c, r, no_s, no_s, no_p, xy),
+                     _signed_distance(no_c, no_r, no_s, no_s, poly, xy),
+                     _signed_distance(no_c, no_r, a, b, no_p, xy)], axis=-1)
+
+
 def pymunk_nearest_distance(scene: Scene, xy) -> np.ndarray:
     """Reference: ``scene.space.point_query_nearest`` one point at a time, (..., 2) -> (...)."""
     xy = _check_xy(xy, "pymunk_nearest_distance")
@@ -240,5 +262,6 @@ def sample_start_pose(scene: Scene, rng: np.random.Generator, actions=ACTIONS,
                        f"(seed {scene.seed}) after {max_rounds * 64} candidates")
 
 
-__all__ = ["nearest_distance", "nearest_distance_batch", "pymunk_nearest_distance",
+__all__ = ["nearest_distance", "nearest_distance_batch", "nearest_distance_by_kind", "KINDS",
+           "pymunk_nearest_distance",
            "ClearanceField", "clearance_field", "sample_fields", "sample_start_pose"]
