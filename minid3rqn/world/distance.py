@@ -69,6 +69,16 @@ def _check_xy(xy, name):
     return arr
 
 
+def _check_batch_xy(batch, xy, name):
+    """A SceneBatch and points (N, M, 2), one point set per world; else a clear error."""
+    if not isinstance(batch, SceneBatch):
+        raise TypeError(f"{name}: batch must be a SceneBatch; got {type(batch).__name__}")
+    xy = _check_xy(xy, name)
+    if xy.ndim != 3 or xy.shape[0] != len(batch):
+        raise ValueError(f"{name}: xy must be (N={len(batch)}, M, 2); got shape {xy.shape}")
+    return xy
+
+
 def nearest_distance(scene: Scene, xy) -> np.ndarray:
     """Signed distance from each point to the nearest obstacle of ``scene``.
 
@@ -89,13 +99,7 @@ def nearest_distance(scene: Scene, xy) -> np.ndarray:
 def nearest_distance_batch(batch: SceneBatch, xy) -> np.ndarray:
     """Signed distances in N worlds at once: xy (N, M, 2), point set m in world n ->
     (N, M) float64."""
-    if not isinstance(batch, SceneBatch):
-        raise TypeError(f"nearest_distance_batch: batch must be a SceneBatch; got "
-                        f"{type(batch).__name__}")
-    xy = _check_xy(xy, "nearest_distance_batch")
-    if xy.ndim != 3 or xy.shape[0] != len(batch):
-        raise ValueError(f"nearest_distance_batch: xy must be (N={len(batch)}, M, 2); got "
-                         f"shape {xy.shape}")
+    xy = _check_batch_xy(batch, xy, "nearest_distance_batch")
     return _signed_distance(batch.circ_c, batch.circ_r, batch.wall_a, batch.wall_b,
                             batch.poly, xy)
 
@@ -108,13 +112,7 @@ def nearest_distance_by_kind(batch: SceneBatch, xy) -> np.ndarray:
     -> (N, M, 3), the signed distance to the nearest circle, polygon and wall
     (``KINDS``; a world without one kind reads a very large distance there). The
     minimum over the last axis is ``nearest_distance_batch``."""
-    if not isinstance(batch, SceneBatch):
-        raise TypeError(f"nearest_distance_by_kind: batch must be a SceneBatch; got "
-                        f"{type(batch).__name__}")
-    xy = _check_xy(xy, "nearest_distance_by_kind")
-    if xy.ndim != 3 or xy.shape[0] != len(batch):
-        raise ValueError(f"nearest_distance_by_kind: xy must be (N={len(batch)}, M, 2); got "
-                         f"shape {xy.shape}")
+    xy = _check_batch_xy(batch, xy, "nearest_distance_by_kind")
     c, r, a, b, poly = batch.circ_c, batch.circ_r, batch.wall_a, batch.wall_b, batch.poly
     no_c, no_r, no_s, no_p = c[:, :0], r[:, :0], a[:, :0], poly[:, :0]
     return np.stack([_signed_distance(c, r, no_s, no_s, no_p, xy),
