@@ -446,7 +446,7 @@ def test_scene_overrides_change_the_worlds_and_travel_with_the_run(tmp_path):
                       ("min_gap=two", "min_gap takes one value"),
                       ("min_gap=1,2", "min_gap takes one value"),
                       ("n_obstacles=6,4", "LO,HI"), ("n_obstacles=4.5", "LO,HI"),
-                      ("min_gap=-1", "min_gap takes")):
+                      ("min_gap=-1", "min_gap takes"), ("min_gap=nan", "finite")):
         with pytest.raises(SystemExit, match=f"train-agent --scene.*{says}"):
             parse([bad], "basic", "train-agent --scene")
     few = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene=parse(

@@ -70,9 +70,9 @@ def parse_scene(items, scenario: str, flag: str = "--scene") -> dict | None:
             ok = len(values) == 2 and values[0] <= values[1]
         else:
             ok = len(values) == 1
-        if not ok or any(v < 0 for v in values):
+        if not ok or not all(np.isfinite(v) and v >= 0 for v in values):
             shape = "LO,HI (or one value)" if isinstance(default, tuple) else "one value"
-            raise SystemExit(f"{flag}: {key} takes {shape}, {kind.__name__}s >= 0 (default "
+            raise SystemExit(f"{flag}: {key} takes {shape}, finite {kind.__name__}s >= 0 (default "
                              f"{default}); got {text!r}")
         out[key] = values if isinstance(default, tuple) else values[0]
     return out
