@@ -24,6 +24,15 @@ SHIPPED = ROOT / "minid3rqn" / "models" / "d3rqn_basic.npz"
 SHIPPED_DEPTH = ROOT / "minid3rqn" / "models" / "depth_basic.npz"
 
 
+def smoke_train_meta(run, *flags) -> dict:
+    """``train-agent --smoke --quiet FLAGS --out RUN``; the saved model's meta."""
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    assert commands.run_train_agent(p.parse_args(["--smoke", "--quiet", *flags,
+                                                  "--out", str(run)])) == 0
+    return QNetPolicy.load(Path(run) / "model.npz").meta
+
+
 def test_wilson_interval():
     lo, hi = wilson_interval(0, 2000)
     assert lo == 0.0 and 0.0015 < hi < 0.0025
@@ -346,12 +355,7 @@ def test_depth_noise_is_a_smooth_seeded_log_depth_error(tmp_path):
     for bad in (-0.1, 1.0, float("nan"), True, "0.1"):
         with pytest.raises(ValueError, match="depth_noise"):
             Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, depth_noise=bad))
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    args = p.parse_args(["--smoke", "--quiet", "--depth-noise", "0.1", "--out",
-                         str(tmp_path / "run")])
-    assert commands.run_train_agent(args) == 0
-    meta = QNetPolicy.load(tmp_path / "run" / "model.npz").meta
+    meta = smoke_train_meta(tmp_path / "run", "--depth-noise", "0.1")
     assert meta["train_config"]["flights"]["depth_noise"] == 0.1
 
 
@@ -458,12 +462,7 @@ def test_scene_overrides_change_the_worlds_and_travel_with_the_run(tmp_path):
     assert count == [[2, 2], [9, 9]]
     with pytest.raises(ValueError, match="config.scene has unknown parameter.*'gap'"):
         Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene={"gap": 2.0}))
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    args = p.parse_args(["--smoke", "--quiet", "--scene", "n_obstacles=3", "--out",
-                         str(tmp_path / "run")])
-    assert commands.run_train_agent(args) == 0
-    meta = QNetPolicy.load(tmp_path / "run" / "model.npz").meta
+    meta = smoke_train_meta(tmp_path / "run", "--scene", "n_obstacles=3")
     assert meta["train_config"]["flights"]["scene"] == {"n_obstacles": [3, 3]}
     tr = Trainer.resume(tmp_path / "run", progress=False)
     assert [len(w.circle_radii) + len(w.poly_verts) for w in tr.flights.worlds] == [3, 3]
