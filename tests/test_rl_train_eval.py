@@ -16,6 +16,7 @@ from minid3rqn.rl.policies import (OraclePolicy, QNetPolicy, RandomPolicy, React
                                    StraightPolicy)
 from minid3rqn.rl.train import TrainConfig, Trainer
 from minid3rqn.world import ACTIONS
+from minid3rqn.world.scenarios import make_scene
 
 pytestmark = pytest.mark.rl
 
@@ -466,3 +467,39 @@ def test_scene_overrides_change_the_worlds_and_travel_with_the_run(tmp_path):
     assert meta["train_config"]["flights"]["scene"] == {"n_obstacles": [3, 3]}
     tr = Trainer.resume(tmp_path / "run", progress=False)
     assert [len(w.circle_radii) + len(w.poly_verts) for w in tr.flights.worlds] == [3, 3]
+
+
+def test_scene_mix_changes_that_fraction_of_the_pool_and_travels_with_the_run(tmp_path):
+    """--scene-mix P: round(P * n_worlds) worlds of the pool are built with --scene, the
+    others are the scenario as it is (the same seeds either way); bad fractions, and a mix
+    without --scene, are refused naming the flag; a resumed run rebuilds the same pool."""
+    def count(flights):
+        return [len(w.circle_radii) + len(w.poly_verts) for w in flights.worlds]
+
+    def as_it_is(seed):                     # obstacles in the scenario's own world of a seed
+        w = make_scene("basic", int(seed))
+        return len(w.circle_radii) + len(w.poly_verts)
+    plain = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=4))
+    mixed = Flights("basic", 2, seed=0, config=FlightsConfig(
+        n_worlds=4, scene={"n_obstacles": [2, 2]}, scene_mix=0.5))
+    assert mixed.world_seeds.tolist() == plain.world_seeds.tolist()
+    assert count(mixed) == [2, 2] + [as_it_is(s) for s in plain.world_seeds[2:]]
+    assert count(plain) == [as_it_is(s) for s in plain.world_seeds]
+    for bad in (-0.1, 1.5, float("nan"), True):
+        with pytest.raises(ValueError, match="config.scene_mix"):
+            Flights("basic", 2, seed=0, config=FlightsConfig(
+                n_worlds=4, scene={"min_gap": 2.0}, scene_mix=bad))
+    with pytest.raises(ValueError, match="config.scene_mix is 0.5 but config.scene is None"):
+        Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=4, scene_mix=0.5))
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    for flags, says in ((["--scene-mix", "1.5", "--scene", "min_gap=2"], "fraction in"),
+                        (["--scene-mix", "nan", "--scene", "min_gap=2"], "fraction in"),
+                        (["--scene-mix", "0.5"], "needs --scene")):
+        with pytest.raises(SystemExit, match=f"train-agent --scene-mix.*{says}"):
+            commands.run_train_agent(p.parse_args(["--smoke", "--quiet", *flags,
+                                                   "--out", str(tmp_path / "bad")]))
+    meta = smoke_train_meta(tmp_path / "run", "--scene", "n_obstacles=3", "--scene-mix", "0.5")
+    assert meta["train_config"]["flights"]["scene_mix"] == 0.5
+    tr = Trainer.resume(tmp_path / "run", progress=False)
+    assert count(tr.flights) == [3, as_it_is(tr.flights.world_seeds[1])]

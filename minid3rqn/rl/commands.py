@@ -211,6 +211,9 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                         "depth")
     p.add_argument("--scene", action="append", default=[], metavar="KEY=VALUE",
                    help=SCENE_HELP + "; the training worlds only")
+    p.add_argument("--scene-mix", type=float, default=1.0, metavar="P",
+                   help="the fraction of the training worlds built with --scene; the rest "
+                        "are the scenario as it is (ours; default 1: all of them)")
     p.add_argument("--depth-noise", type=float, default=0.0,
                    help="training augmentation (ours): std of a smooth random error in log "
                         "depth put on every frame the Q-net sees (0: none; "
@@ -272,6 +275,13 @@ def config_from_args(args):
         cfg.flights = FlightsConfig(n_worlds=2)
     cfg.flights.depth_noise = args.depth_noise
     cfg.flights.scene = parse_scene(args.scene, args.scenario, "train-agent --scene")
+    if not (np.isfinite(args.scene_mix) and 0.0 <= args.scene_mix <= 1.0):
+        raise SystemExit(f"train-agent --scene-mix: expected a fraction in [0, 1]; got "
+                         f"{args.scene_mix!r}")
+    if args.scene_mix != 1.0 and cfg.flights.scene is None:
+        raise SystemExit(f"train-agent --scene-mix {args.scene_mix:g}: a mixed pool needs "
+                         f"--scene KEY=VALUE (the parameters of its changed worlds)")
+    cfg.flights.scene_mix = args.scene_mix
     return cfg
 
 

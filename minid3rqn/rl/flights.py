@@ -63,6 +63,8 @@ class FlightsConfig:
     scene: dict | None = None    # ours: scenario parameters replacing the defaults in
                                  # make_scene (world.scenarios.DEFAULTS), e.g.
                                  # {"min_gap": 2.0}; None: the scenario as it is
+    scene_mix: float = 1.0       # ours: the fraction of the pool built with ``scene``; the
+                                 # other worlds are the scenario as it is (a mixed pool)
 
 
 ENCODINGS = ("depth", "inverse")
@@ -140,6 +142,14 @@ class Flights:
                 raise ValueError(f"Flights: config.scene has unknown parameter(s) {unknown} "
                                  f"for scenario {scenario!r}; expected some of "
                                  f"{sorted(DEFAULTS[scenario])}")
+        mix = self.cfg.scene_mix
+        if isinstance(mix, bool) or not isinstance(mix, (int, float, np.floating)) \
+                or not 0.0 <= mix <= 1.0:
+            raise ValueError(f"Flights: config.scene_mix (the fraction of worlds built with "
+                             f"config.scene) must be a number in [0, 1]; got {mix!r}")
+        if mix != 1.0 and scene is None:
+            raise ValueError(f"Flights: config.scene_mix is {mix:g} but config.scene is None; "
+                             f"a mixed pool needs the parameters of its other worlds")
         n_worlds = self.cfg.n_worlds
         if isinstance(n_worlds, bool) or not isinstance(n_worlds, (int, np.integer)) \
                 or n_worlds < 1:
@@ -165,8 +175,13 @@ class Flights:
         self.rng = np.random.default_rng(seed)
         base = TEST_SEEDS if self.cfg.test_worlds else TRAIN_SEEDS
         self.world_seeds = base + self.rng.choice(1_000_000, size=self.cfg.n_worlds, replace=False)
-        self.worlds = [make_scene(scenario, int(s), **(self.cfg.scene or {}))
-                       for s in self.world_seeds]
+        # A mixed pool (scene_mix < 1): the first round(scene_mix * n_worlds) worlds are
+        # built with the overrides, the rest as the scenario is (the seeds are random, so
+        # which worlds get which is too).
+        n_changed = round(self.cfg.scene_mix * self.cfg.n_worlds)
+        changed = self.cfg.scene or {}
+        self.worlds = [make_scene(scenario, int(s), **(changed if i < n_changed else {}))
+                       for i, s in enumerate(self.world_seeds)]
         self.world_of = np.zeros(self.n, dtype=np.int64)
         self.poses = np.zeros((self.n, 3))
         self.t = np.zeros(self.n, dtype=np.int64)
