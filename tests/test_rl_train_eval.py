@@ -34,6 +34,13 @@ def smoke_train_meta(run, *flags) -> dict:
     return QNetPolicy.load(Path(run) / "model.npz").meta
 
 
+def obstacles(flights) -> list:
+    """How many obstacles (pillars and boxes) each world of a Flights pool (or each scene of
+    a list) holds."""
+    worlds = flights if isinstance(flights, list) else flights.worlds
+    return [len(w.circle_radii) + len(w.poly_verts) for w in worlds]
+
+
 def test_wilson_interval():
     lo, hi = wilson_interval(0, 2000)
     assert lo == 0.0 and 0.0015 < hi < 0.0025
@@ -459,32 +466,28 @@ def test_scene_overrides_change_the_worlds_and_travel_with_the_run(tmp_path):
     many = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene=parse(
         ["n_obstacles=9"], "basic")))
     assert few.world_seeds.tolist() == many.world_seeds.tolist()   # same seeds, other worlds
-    count = [[len(w.circle_radii) + len(w.poly_verts) for w in fl.worlds] for fl in (few, many)]
-    assert count == [[2, 2], [9, 9]]
+    assert [obstacles(few), obstacles(many)] == [[2, 2], [9, 9]]
     with pytest.raises(ValueError, match="config.scene has unknown parameter.*'gap'"):
         Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene={"gap": 2.0}))
     meta = smoke_train_meta(tmp_path / "run", "--scene", "n_obstacles=3")
     assert meta["train_config"]["flights"]["scene"] == {"n_obstacles": [3, 3]}
     tr = Trainer.resume(tmp_path / "run", progress=False)
-    assert [len(w.circle_radii) + len(w.poly_verts) for w in tr.flights.worlds] == [3, 3]
+    assert obstacles(tr.flights) == [3, 3]
 
 
 def test_scene_mix_changes_that_fraction_of_the_pool_and_travels_with_the_run(tmp_path):
     """--scene-mix P: round(P * n_worlds) worlds of the pool are built with --scene, the
     others are the scenario as it is (the same seeds either way); bad fractions, and a mix
     without --scene, are refused naming the flag; a resumed run rebuilds the same pool."""
-    def count(flights):
-        return [len(w.circle_radii) + len(w.poly_verts) for w in flights.worlds]
-
     def as_it_is(seed):                     # obstacles in the scenario's own world of a seed
-        w = make_scene("basic", int(seed))
-        return len(w.circle_radii) + len(w.poly_verts)
+        return obstacles([make_scene("basic", int(seed))])[0]
+
     plain = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=4))
     mixed = Flights("basic", 2, seed=0, config=FlightsConfig(
         n_worlds=4, scene={"n_obstacles": [2, 2]}, scene_mix=0.5))
     assert mixed.world_seeds.tolist() == plain.world_seeds.tolist()
-    assert count(mixed) == [2, 2] + [as_it_is(s) for s in plain.world_seeds[2:]]
-    assert count(plain) == [as_it_is(s) for s in plain.world_seeds]
+    assert obstacles(mixed) == [2, 2] + [as_it_is(s) for s in plain.world_seeds[2:]]
+    assert obstacles(plain) == [as_it_is(s) for s in plain.world_seeds]
     for bad in (-0.1, 1.5, float("nan"), True):
         with pytest.raises(ValueError, match="config.scene_mix"):
             Flights("basic", 2, seed=0, config=FlightsConfig(
@@ -502,4 +505,4 @@ def test_scene_mix_changes_that_fraction_of_the_pool_and_travels_with_the_run(tm
     meta = smoke_train_meta(tmp_path / "run", "--scene", "n_obstacles=3", "--scene-mix", "0.5")
     assert meta["train_config"]["flights"]["scene_mix"] == 0.5
     tr = Trainer.resume(tmp_path / "run", progress=False)
-    assert count(tr.flights) == [3, as_it_is(tr.flights.world_seeds[1])]
+    assert obstacles(tr.flights) == [3, as_it_is(tr.flights.world_seeds[1])]
