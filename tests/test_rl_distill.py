@@ -244,3 +244,40 @@ def test_mirror_augmentation_needs_a_symmetric_action_table(tmp_path, monkeypatc
                       flights=FlightsConfig(n_worlds=1))
     with pytest.raises(ValueError, match=r"--mirror-augment.*symmetric action table"):
         Trainer(cfg, tmp_path, progress=False)
+
+
+def test_a_teacher_on_predicted_depth_reads_the_students_frames(tmp_path):
+    """--teacher-depth pred: the labels are the teacher's Q-values of the student's own
+    frame (here a stand-in DispNet's flat 5 m), not of the GT frame; the default reads
+    GT. A teacher on predicted depth needs a student on it: clear errors otherwise."""
+    def first_labels(teacher_depth):
+        d = Distiller(small_config(depth="pred", teacher_depth=teacher_depth),
+                      tmp_path / teacher_depth, depth_estimator=_Flat(), progress=False)
+        d._start()
+        d.choose_actions()
+        return d, d.teacher.last_q.copy()
+
+    d, got = first_labels("pred")
+    assert np.allclose(d.stacker.obs[:, -1], 0.5)
+    twin = load_teacher(TEACHER, d.frame_shape, d.flights.n_actions)
+    twin.reset(d.cfg.n_envs)
+    twin.act({"frames": d.stacker.obs[:, -1]}, started=np.ones(d.cfg.n_envs, bool))
+    np.testing.assert_array_equal(got, twin.last_q)
+    d_gt, got_gt = first_labels("gt")
+    twin.reset(d.cfg.n_envs)
+    twin.act({"frames": d_gt.flights.gt_frames()}, started=np.ones(d.cfg.n_envs, bool))
+    np.testing.assert_array_equal(got_gt, twin.last_q)
+    assert not np.allclose(got, got_gt)
+    with pytest.raises(ValueError, match="teacher_depth is 'gt' or 'pred'"):
+        Distiller(small_config(teacher_depth="GT"), tmp_path / "bad", progress=False)
+    with pytest.raises(ValueError, match="teacher_depth='pred'.*depth='pred'.*'gt'"):
+        Distiller(small_config(teacher_depth="pred"), tmp_path / "bad", progress=False)
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    args = p.parse_args(["--smoke", "--teachers", TEACHER, "--teacher-depth", "pred",
+                         "--out", str(tmp_path / "cli")])
+    with pytest.raises(SystemExit, match="--teacher-depth pred.*--depth pred; got.*--depth gt"):
+        commands.config_from_args(args)
+    args = p.parse_args(["--smoke", "--depth", "pred", "--teachers", TEACHER,
+                         "--teacher-depth", "pred", "--out", str(tmp_path / "cli")])
+    assert commands.config_from_args(args).teacher_depth == "pred"

@@ -231,6 +231,10 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--teacher-mirror", action="store_true",
                    help="each teacher net also flies the mirrored view: the teacher is the "
                         "ensemble of the nets and their mirror images (--teachers; ours)")
+    p.add_argument("--teacher-depth", choices=["gt", "pred"], default=d.teacher_depth,
+                   help="what the teacher reads: gt, the privileged GT depth (default), or "
+                        "pred, the student's own predicted-depth frames (for a teacher of "
+                        "nets that fly on predicted depth; needs --depth pred; ours)")
     p.add_argument("--mirror-augment", action="store_true",
                    help="training augmentation (ours): learn from each sampled window "
                         "mirrored left-right with probability 1/2 (frames flipped, actions "
@@ -254,7 +258,7 @@ def config_from_args(args):
                       init_model=args.init_model, eps_start=args.eps_start,
                       teachers=args.teachers, teacher_mix=args.teacher_mix,
                       teacher_mix_steps=args.teacher_mix_steps,
-                      teacher_mirror=args.teacher_mirror,
+                      teacher_mirror=args.teacher_mirror, teacher_depth=args.teacher_depth,
                       mirror_augment=args.mirror_augment)
     if args.conv_channels is not None:
         try:
@@ -282,6 +286,10 @@ def config_from_args(args):
         raise SystemExit(f"train-agent --scene-mix {args.scene_mix:g}: a mixed pool needs "
                          f"--scene KEY=VALUE (the parameters of its changed worlds)")
     cfg.flights.scene_mix = args.scene_mix
+    if cfg.teacher_depth == "pred" and not (cfg.teachers and cfg.depth == "pred"):
+        raise SystemExit(f"train-agent --teacher-depth pred: the teacher reads the student's "
+                         f"predicted depth, so it needs --teachers and --depth pred; got "
+                         f"--teachers {cfg.teachers or '(none)'!r} --depth {cfg.depth}")
     return cfg
 
 

@@ -22,6 +22,11 @@ What. Flights are flown exactly as in Q-learning (``rl.train``), with two change
        mistakes lead to (DAgger). There is no epsilon-greedy exploration (the
        ``eps_*`` settings are unused): the teacher's actions are the exploration.
 
+A variant (``teacher_depth="pred"``, ours): the teacher reads the student's own
+predicted-depth frame instead of the GT one. The teacher is then not privileged: it is
+a set of nets that already fly on predicted depth (say, several students and their
+mirror images), and the student learns to fly as their ensemble does in one pass.
+
 The update replaces the double-Q loss: on a window of L = 5 steps from a zero state
 (as in Q-learning, ``rl.agent``), the student's Q-values of every action regress onto
 the teacher's:
@@ -120,6 +125,13 @@ class Distiller(Trainer):
         if cfg.teacher_mix_steps < 1:
             raise ValueError(f"Distiller: teacher_mix_steps must be >= 1; got "
                              f"{cfg.teacher_mix_steps}")
+        if cfg.teacher_depth not in ("gt", "pred"):
+            raise ValueError(f"Distiller: teacher_depth is 'gt' or 'pred'; got "
+                             f"{cfg.teacher_depth!r}")
+        if cfg.teacher_depth == "pred" and cfg.depth != "pred":
+            raise ValueError("Distiller: teacher_depth='pred' gives the teacher the student's "
+                             f"predicted-depth frames, so it needs depth='pred'; got "
+                             f"depth={cfg.depth!r}")
         super().__init__(cfg, out_dir, depth_estimator, progress)
         self.teacher = load_teacher(cfg.teachers, self.frame_shape, self.flights.n_actions,
                                     mirror=cfg.teacher_mirror)
@@ -138,8 +150,11 @@ class Distiller(Trainer):
 
     # -- the loop (rl.train.Trainer.vector_step calls these) -------------------------
     def choose_actions(self) -> np.ndarray:
-        gt = {"frames": self.flights.gt_frames()}
-        teacher_a = self.teacher.act(gt, started=self.teacher_started)
+        if self.cfg.teacher_depth == "gt":
+            seen = self.flights.gt_frames()
+        else:                                                  # the student's current frame
+            seen = self.stacker.obs[:, -1]
+        teacher_a = self.teacher.act({"frames": seen}, started=self.teacher_started)
         self.teacher_started[:] = False
         self.replay.label_latest(self.teacher.last_q)          # Q_T(o_t, .)
         q, self.state = self.agent.q_values(self.stacker.obs, self.state)

@@ -54,11 +54,13 @@ class TrainConfig:
     log_every: int = 2_000         # transitions between learning-curve rows
     checkpoint_every: int = 10_000  # transitions between checkpoints
     init_model: str = ""           # start from these Q-net weights (fine-tuning), if set
-    # -- distillation (ours, optional; rl/distill.py): a teacher flown on GT depth -------
+    # -- distillation (ours, optional; rl/distill.py): a teacher, on GT depth by default
     teachers: str = ""             # '+'-joined Q-net files; set -> learn the teacher's Q-values
     teacher_mix: float = 0.5       # probability of flying the teacher's action at the start,
     teacher_mix_steps: int = 10_000  # decayed linearly to 0 over this many transitions
     teacher_mirror: bool = False   # ours: each teacher net also flies the mirrored view
+    teacher_depth: str = "gt"      # ours: what the teacher reads: gt (privileged) | pred (the
+                                   # student's own frames: distilling nets that fly on them)
     mirror_augment: bool = False   # ours: learn from each sampled window mirrored left-right
                                    # with probability 1/2 (SequenceBatch.mirrored)
     agent: AgentConfig = field(default_factory=AgentConfig)
