@@ -195,7 +195,7 @@ class _TimedEstimator:
 
 
 def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int = 1,
-                    depth_model: str | None = None) -> dict:
+                    depth_model: str | None = None, flip: bool = False) -> dict:
     """Render -> DispNet -> Q-net step -> world step for ``n_flights`` flights in lockstep
     (batched over flights): frames per second (= Hz per flight when n_flights = 1).
 
@@ -204,18 +204,22 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
     DispNet depth). Each frame is rendered and its depth predicted once. (Until this
     session the loop also re-rendered and re-predicted the current pose before acting,
     doing the perception twice per step; ``rendered_twice`` runs that old loop.)
-    ``depth_model``: another DispNet file (e.g. a two-frame one, train-depth --prev-frame)."""
+    ``depth_model``: another DispNet file (e.g. a two-frame one, train-depth --prev-frame).
+    ``flip``: the DispNet's test-time flip (``--flip-tta``: two DispNet passes per frame)."""
     import numpy as np
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.flights import Flights
     policy, model = _qnet_model(ensemble)
     depth_path = Path(depth_model) if depth_model else shipped_depth_model("basic")
     if depth_path.exists():
-        est, depth_name = load_depth_estimator(depth_path), f"DispNet {depth_path.name}"
+        est, depth_name = load_depth_estimator(depth_path, flip), f"DispNet {depth_path.name}"
     else:   # the speed does not depend on the weights: time an untrained DispNet
         from minid3rqn.depth.evaluate import DepthEstimator
         from minid3rqn.nets.dispnet import DispNet
-        est, depth_name = DepthEstimator(DispNet()), "DispNet (default architecture, untrained)"
+        est = DepthEstimator(DispNet(), flip=flip)
+        depth_name = "DispNet (default architecture, untrained)"
+    if flip:
+        depth_name += ", test-time flip"
     timed = _TimedEstimator(est)
     fl = Flights("basic", n_flights, seed=0, depth="pred", depth_estimator=timed,
                  autoreset=True)
@@ -308,7 +312,8 @@ def child(args) -> None:
     if "framework" in parts:
         for n_flights in (1, 16):
             print(json.dumps(bench_framework(args.repeat, args.threads, n_flights,
-                                             args.ensemble, args.depth_model)), flush=True)
+                                             args.ensemble, args.depth_model,
+                                             args.flip_tta)), flush=True)
     if "framework_old" in parts:
         for n_flights in (1, 16):
             print(json.dumps(bench_framework_rendered_twice(args.repeat, args.threads,
@@ -332,6 +337,8 @@ def main():
                    help="framework and eval parts: fly N copies of the D3RQN as an ensemble")
     p.add_argument("--depth-model", default=None,
                    help="framework part: this DispNet file instead of the shipped one")
+    p.add_argument("--flip-tta", action="store_true",
+                   help="framework part: the DispNet's test-time flip (two passes per frame)")
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.child:
@@ -346,6 +353,8 @@ def main():
         cmd += ["--only", args.only]
     if args.depth_model:
         cmd += ["--depth-model", args.depth_model]
+    if args.flip_tta:
+        cmd += ["--flip-tta"]
     sys.exit(subprocess.run(cmd, env=env).returncode)
 
 
