@@ -239,6 +239,10 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                    help="training augmentation (ours): learn from each sampled window "
                         "mirrored left-right with probability 1/2 (frames flipped, actions "
                         "and teacher labels mapped to their mirror images)")
+    p.add_argument("--average-last", type=int, default=d.average_last, metavar="N",
+                   help="weight averaging (ours): model.npz holds the mean of the weights "
+                        "after every update of the last N transitions, model_last.npz the "
+                        "last weights (0, the default: no averaging)")
     p.add_argument("--out", default=None, help="run folder (default runs/agent/<name>)")
     p.add_argument("--resume", action="store_true")
     p.add_argument("--ship", default=None, help="also copy the model to minid3rqn/models/NAME.npz")
@@ -277,6 +281,10 @@ def config_from_args(args):
         for k, v in SMOKE.items():
             setattr(cfg, k, v)
         cfg.flights = FlightsConfig(n_worlds=2)
+    if not 0 <= args.average_last <= cfg.total_steps:
+        raise SystemExit(f"train-agent --average-last: expected a number of transitions in "
+                         f"[0, --steps = {cfg.total_steps}]; got {args.average_last}")
+    cfg.average_last = args.average_last
     cfg.flights.depth_noise = args.depth_noise
     cfg.flights.scene = parse_scene(args.scene, args.scenario, "train-agent --scene")
     if not (np.isfinite(args.scene_mix) and 0.0 <= args.scene_mix <= 1.0):

@@ -63,6 +63,9 @@ class TrainConfig:
                                    # student's own frames: distilling nets that fly on them)
     mirror_augment: bool = False   # ours: learn from each sampled window mirrored left-right
                                    # with probability 1/2 (SequenceBatch.mirrored)
+    average_last: int = 0          # ours: the saved model is the mean of the online weights
+                                   # after every update of the last this-many transitions
+                                   # (weight averaging, "SWA"; 0: the last weights)
     agent: AgentConfig = field(default_factory=AgentConfig)
     flights: FlightsConfig = field(default_factory=FlightsConfig)
 
@@ -110,6 +113,40 @@ def _set_rng_state(rng: np.random.Generator, s: str) -> None:
     rng.bit_generator.state = json.loads(s)
 
 
+class WeightAverage:
+    """The running mean of a net's weights over snapshots (our addition).
+
+    Stochastic weight averaging (Izmailov et al. 2018): the weights at the end of training
+    still jump from update to update with the noise of each minibatch; their mean over many
+    late updates lies nearer the middle of the region they wander in, and often predicts
+    better than any one of them. For a net without batch statistics (ours) the mean is the
+    whole method. Sums are float64, so thousands of snapshots lose nothing.
+    """
+
+    def __init__(self):
+        self.sums: dict[str, np.ndarray] = {}
+        self.count = 0
+
+    def add(self, net) -> None:
+        for name, p in net.named_parameters():
+            if name in self.sums:
+                self.sums[name] += p.data
+            else:
+                self.sums[name] = p.data.astype(np.float64)
+        self.count += 1
+
+    def mean(self, net) -> dict[str, np.ndarray]:
+        """The mean weights, in each parameter's own dtype, named as ``net.state_dict()``."""
+        if self.count == 0:
+            raise RuntimeError("WeightAverage.mean: no snapshot has been added")
+        return {name: (self.sums[name] / self.count).astype(p.dtype)
+                for name, p in net.named_parameters()}
+
+    def load(self, sums: dict[str, np.ndarray], count: int) -> None:
+        self.sums = {k: np.asarray(v, dtype=np.float64).copy() for k, v in sums.items()}
+        self.count = int(count)
+
+
 class Trainer:
     """Holds the run's state; ``run()`` trains to ``total_steps`` (resumable)."""
 
@@ -119,6 +156,11 @@ class Trainer:
         if cfg.teachers and not self.learns_from_teacher:
             raise ValueError("Trainer: cfg.teachers is set, which asks for distillation; "
                              "use rl.distill.Distiller (or rl.train.train, which picks it)")
+        if (isinstance(cfg.average_last, bool) or not isinstance(cfg.average_last, (int, np.integer))
+                or not 0 <= cfg.average_last <= cfg.total_steps):
+            raise ValueError(f"Trainer: average_last (--average-last) is a number of "
+                             f"transitions in [0, total_steps = {cfg.total_steps}]; got "
+                             f"{cfg.average_last!r}")
         self.cfg = cfg
         self.out = Path(out_dir)
         self.out.mkdir(parents=True, exist_ok=True)
@@ -150,6 +192,7 @@ class Trainer:
         self.steps = 0
         self.update_credit = 0.0
         self.episodes = 0
+        self.averager = WeightAverage()
         self.curve: list[dict] = []
         self._window = {"returns": [], "success": [], "lengths": [], "loss": [], "q": []}
         self._ret = np.zeros(cfg.n_envs)
@@ -217,6 +260,8 @@ class Trainer:
                     which = self.aug_rng.random(batch.actions.shape[1]) < 0.5
                     batch = batch.mirrored(which, self.mirror_of)
                 info = self.learn(batch)
+                if self.steps > cfg.total_steps - cfg.average_last:
+                    self.averager.add(self.agent.online)
                 self._window["loss"].append(info["loss"])
                 self._window["q"].append(info["q_mean"])
 
@@ -300,7 +345,9 @@ class Trainer:
         if self.state is not None:
             arrays["state_h"], arrays["state_c"] = self.state[0].data, self.state[1].data
         arrays.update(self.extra_state())
+        arrays.update({f"average.{k}": v for k, v in self.averager.sums.items()})
         meta = {"config": self.cfg.to_dict(), "steps": self.steps, "episodes": self.episodes,
+                "average_count": self.averager.count,
                 "update_credit": self.update_credit, "curve": self.curve,
                 "window": self._window, "rng": _rng_state(self.rng),
                 "replay_rng": _rng_state(self.replay.rng), "aug_rng": _rng_state(self.aug_rng),
@@ -309,18 +356,29 @@ class Trainer:
         self.save_model(self.out / "model.npz")
         return path
 
+    def save_model(self, path, extra: dict | None = None) -> Path:
+        """The model file: the online weights; with weight averaging under way, the mean
+        so far (``average_last``), and the online weights beside it as ``model_last.npz``
+        so the two can be flown against each other."""
+        meta = {"kind": "qnet", "qnet_config": self.agent.qnet_config.to_dict(),
+                "train_config": self.cfg.to_dict(), "steps": self.steps,
+                "updates": self.agent.updates, **(extra or {})}
+        if self.averager.count == 0:
+            return self.agent.online.save(path, meta)
+        path = Path(path)
+        self.agent.online.save(path.with_name(path.stem + "_last.npz"),
+                               {**meta, "weights": "the last update's (online)"})
+        meta["weights"] = (f"the mean after each of the last {self.averager.count} updates "
+                           f"(--average-last {self.cfg.average_last})")
+        meta["averaged_updates"] = self.averager.count
+        return save_npz(path, self.averager.mean(self.agent.online), meta)
+
     def extra_state(self) -> dict[str, np.ndarray]:
         """More arrays for the checkpoint (a subclass's), given back to ``load_extra_state``."""
         return {}
 
     def load_extra_state(self, arrays: dict[str, np.ndarray]) -> None:
         pass
-
-    def save_model(self, path, extra: dict | None = None) -> Path:
-        meta = {"kind": "qnet", "qnet_config": self.agent.qnet_config.to_dict(),
-                "train_config": self.cfg.to_dict(), "steps": self.steps,
-                "updates": self.agent.updates, **(extra or {})}
-        return self.agent.online.save(path, meta)
 
     @classmethod
     def resume(cls, out_dir, depth_estimator=None, progress: bool = True,
@@ -343,6 +401,7 @@ class Trainer:
         if "state_h" in arrays:
             tr.state = (Tensor(arrays["state_h"].copy()), Tensor(arrays["state_c"].copy()))
         tr.load_extra_state(arrays)
+        tr.averager.load(part("average."), meta.get("average_count", 0))
         tr.steps, tr.episodes = meta["steps"], meta["episodes"]
         tr.update_credit = meta["update_credit"]
         tr.curve = meta["curve"]
@@ -371,4 +430,4 @@ def train(cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True
     return tr
 
 
-__all__ = ["TrainConfig", "Trainer", "train", "epsilon_at"]
+__all__ = ["TrainConfig", "Trainer", "WeightAverage", "train", "epsilon_at"]
