@@ -109,3 +109,69 @@ def test_bad_average_last_gets_a_clear_error(tmp_path):
         commands.config_from_args(args)
     args = p.parse_args(["--smoke", "--average-last", "64", "--out", str(tmp_path / "cli")])
     assert commands.config_from_args(args).average_last == 64
+
+
+# -- growing the LSTM (--init-widen; nets/qnet.py, widen_recurrent_state) -------------------
+
+def _qnet(width, variant="d3rqn", seed=0, convs=None):
+    from minid3rqn.nets.qnet import QNet, QNetConfig
+    extra = {"convs": convs} if convs else {}
+    return QNet(QNetConfig.for_variant(variant, height=32, width_px=104, n_actions=5,
+                                       width=width, **extra), rng=seed)
+
+
+@pytest.mark.parametrize("variant", ["d3rqn", "ddrqn"])
+def test_a_widened_net_starts_with_the_same_q_values_and_can_learn(variant):
+    from minid3rqn import autograd as ag
+    from minid3rqn.nets.qnet import widen_recurrent_state
+    narrow, wide = _qnet(8, variant, seed=1), _qnet(13, variant, seed=2)
+    wide.load_state_dict(widen_recurrent_state(narrow.state_dict(), wide.state_dict()))
+    obs = np.random.default_rng(3).random((6, 2, 1, 32, 104)).astype(np.float32)
+    q0, _ = narrow(obs)
+    q1, (h, _) = wide(obs)
+    np.testing.assert_allclose(q1.data, q0.data, rtol=1e-5, atol=1e-6)
+    assert np.abs(h.data[:, 8:]).max() > 0          # the new units run ...
+    ag.sum(q1 * q1).backward()                      # ... and their path to the heads opens
+    head = wide.advantage if variant == "d3rqn" else wide.q_head
+    assert np.abs(head.weight.grad[:, 8:]).max() > 0
+
+
+def test_widening_refuses_what_it_cannot_do(tmp_path):
+    from minid3rqn.nets.qnet import widen_recurrent_state
+    wide = _qnet(16)
+    with pytest.raises(ValueError, match="at least as wide.*16.*got 8"):
+        widen_recurrent_state(wide.state_dict(), _qnet(8).state_dict())
+    with pytest.raises(ValueError, match="only a recurrent"):
+        widen_recurrent_state(_qnet(8, "d3qn").state_dict(), _qnet(16, "d3qn").state_dict())
+    other = _qnet(16, convs=[[4, 4, 2], [8, 4, 2], [6, 3, 1]])
+    with pytest.raises(ValueError, match="only the LSTM may be wider|LSTM's input"):
+        widen_recurrent_state(_qnet(8).state_dict(), other.state_dict())
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    args = p.parse_args(["--smoke", "--init-widen", "--out", str(tmp_path / "cli")])
+    with pytest.raises(SystemExit, match="--init-widen.*needs --init-model"):
+        commands.config_from_args(args)
+    narrow = tmp_path / "narrow.npz"
+    _qnet(32).save(narrow)                          # wider than --smoke's 16 units
+    args = p.parse_args(["--smoke", "--quiet", "--init-widen", "--init-model", str(narrow),
+                         "--out", str(tmp_path / "cli")])
+    with pytest.raises(SystemExit, match="--init-widen.*at least as wide"):
+        commands.run_train_agent(args)
+
+
+def test_training_from_a_widened_net(tmp_path):
+    """A run from a widened --init-model starts from its Q-values and resumes exactly."""
+    narrow = tmp_path / "narrow.npz"
+    _qnet(8).save(narrow, {"kind": "qnet"})
+    cfg = small_config(init_model=str(narrow), init_widen=True)
+    a = Trainer(cfg, tmp_path / "a", progress=False)
+    obs = np.random.default_rng(0).random((3, 2, 1, 32, 104)).astype(np.float32)
+    np.testing.assert_allclose(a.agent.online(obs)[0].data, _qnet(8)(obs)[0].data,
+                               rtol=1e-5, atol=1e-6)
+    a.run(until=48)
+    a.save_checkpoint()
+    b = Trainer.resume(tmp_path / "a", progress=False)
+    a.run()
+    b.run()
+    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
+        np.testing.assert_array_equal(p.data, q.data)

@@ -219,6 +219,10 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                         "depth put on every frame the Q-net sees (0: none; "
                         "rl/flights.py, Flights.depth_error)")
     p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
+    p.add_argument("--init-widen", action="store_true",
+                   help="the --init-model's LSTM is narrower than --hidden: grow it, the new "
+                        "units closed to the heads, so the net starts with the same Q-values "
+                        "(ours; nets/qnet.py, widen_recurrent_state)")
     p.add_argument("--eps-start", type=float, default=d.eps_start)
     p.add_argument("--lr", type=float, default=d.agent.lr, help="Adam step size (paper: 3e-4)")
     p.add_argument("--teachers", default="",
@@ -259,7 +263,8 @@ def config_from_args(args):
                       total_steps=args.steps, learning_starts=args.learning_starts,
                       updates_per_step=args.updates_per_step, eps_decay_steps=args.eps_decay,
                       replay_capacity=args.replay, hidden=args.hidden, depth=args.depth,
-                      init_model=args.init_model, eps_start=args.eps_start,
+                      init_model=args.init_model, init_widen=args.init_widen,
+                      eps_start=args.eps_start,
                       teachers=args.teachers, teacher_mix=args.teacher_mix,
                       teacher_mix_steps=args.teacher_mix_steps,
                       teacher_mirror=args.teacher_mirror, teacher_depth=args.teacher_depth,
@@ -285,6 +290,9 @@ def config_from_args(args):
         raise SystemExit(f"train-agent --average-last: expected a number of transitions in "
                          f"[0, --steps = {cfg.total_steps}]; got {args.average_last}")
     cfg.average_last = args.average_last
+    if cfg.init_widen and not cfg.init_model:
+        raise SystemExit("train-agent --init-widen: widens the --init-model's LSTM, so it needs "
+                         "--init-model")
     cfg.flights.depth_noise = args.depth_noise
     cfg.flights.scene = parse_scene(args.scene, args.scenario, "train-agent --scene")
     if not (np.isfinite(args.scene_mix) and 0.0 <= args.scene_mix <= 1.0):
@@ -318,6 +326,17 @@ def run_train_agent(args) -> int:
             load_teacher(cfg.teachers, (cam.height, cam.width), len(ACTIONS))
         except ValueError as e:
             raise SystemExit(f"train-agent --teachers: {e}")
+    if cfg.init_widen:                    # a net that cannot be widened: say so first
+        from ..io import load_npz
+        from ..nets.qnet import QNet, widen_recurrent_state
+        from ..world import ACTIONS, Camera
+        cam = Camera()
+        try:
+            old, _ = load_npz(cfg.init_model)
+            fresh = QNet(cfg.qnet_config(len(ACTIONS), (cam.height, cam.width)), rng=0)
+            widen_recurrent_state(old, fresh.state_dict())
+        except (ValueError, OSError) as e:
+            raise SystemExit(f"train-agent --init-widen --init-model {cfg.init_model}: {e}")
     out = Path(args.out) if args.out else RUNS / "agent" / (("smoke_" if args.smoke else "")
                                                            + run_name(cfg))
     est = _estimator_for(cfg.depth, args.depth_model, cfg.scenario, args.flip_tta)

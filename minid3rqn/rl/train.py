@@ -54,6 +54,8 @@ class TrainConfig:
     log_every: int = 2_000         # transitions between learning-curve rows
     checkpoint_every: int = 10_000  # transitions between checkpoints
     init_model: str = ""           # start from these Q-net weights (fine-tuning), if set
+    init_widen: bool = False       # ours: init_model has a narrower LSTM; grow it to `hidden`
+                                   # units, same Q-values at the start (widen_recurrent_state)
     # -- distillation (ours, optional; rl/distill.py): a teacher, on GT depth by default
     teachers: str = ""             # '+'-joined Q-net files; set -> learn the teacher's Q-values
     teacher_mix: float = 0.5       # probability of flying the teacher's action at the start,
@@ -173,7 +175,13 @@ class Trainer:
         self.frame_shape = self.flights.frame_shape
         self.agent = Agent(cfg.qnet_config(self.flights.n_actions, self.frame_shape),
                            cfg.agent, rng=net_seed)
-        if cfg.init_model:
+        if cfg.init_model and cfg.init_widen:
+            from ..nets.qnet import widen_recurrent_state
+            old, _ = load_npz(cfg.init_model)
+            self.agent.online.load_state_dict(
+                widen_recurrent_state(old, self.agent.online.state_dict()))
+            self.agent.target.copy_from(self.agent.online)
+        elif cfg.init_model:
             self.agent.online.load(cfg.init_model)
             self.agent.target.copy_from(self.agent.online)
         self.replay = self.make_replay(replay_seed)
