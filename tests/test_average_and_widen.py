@@ -1,4 +1,5 @@
-"""Weight averaging at the end of training (``--average-last``; rl/train.py, ours)."""
+"""Two training options (ours): weight averaging at the end of training (``--average-last``;
+rl/train.py) and growing a net's LSTM with the same Q-values (``--init-widen``; nets/qnet.py)."""
 import argparse
 
 import numpy as np
