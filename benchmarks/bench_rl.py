@@ -26,6 +26,8 @@ Measured (medians over ``--repeat`` runs after warm-ups, float32):
   (the result is then extrapolated linearly and marked so). ``--eval-workers 1,2``
   times it with the flights' chunks spread over that many processes, one per core
   (``evaluate --workers``; each process runs ``--threads`` BLAS threads).
+- ``--qnet FILE``: the framework and eval parts fly this Q-net instead of the shipped one
+  (e.g. a student with a wider LSTM, ``train-agent --init-widen``).
 - ``--ensemble N``: the framework and eval parts fly N copies of the D3RQN as an
   ensemble (``EnsemblePolicy``, docs/d3rqn.md section 10): N Q-net passes per step.
 
@@ -161,15 +163,17 @@ def _torch_qnet(net, torch):
     return t
 
 
-def _qnet_model(ensemble: int = 1):
-    """The shipped D3RQN (else an untrained one: same speed); ``ensemble`` > 1: that many
-    copies of it flying as an ``EnsemblePolicy`` (the speed does not depend on the
-    weights)."""
+def _qnet_model(ensemble: int = 1, qnet: str | None = None):
+    """The shipped D3RQN (else an untrained one: same speed), or the file ``qnet``;
+    ``ensemble`` > 1: that many copies of it flying as an ``EnsemblePolicy`` (the speed
+    does not depend on the weights)."""
     from minid3rqn.rl.commands import SHIPPED_QNET
     from minid3rqn.rl.policies import EnsemblePolicy, QNetPolicy
     from minid3rqn.nets.qnet import QNet, QNetConfig
 
     def one():
+        if qnet:
+            return QNetPolicy.load(qnet, "D3RQN"), str(qnet)
         if SHIPPED_QNET.exists():
             return QNetPolicy.load(SHIPPED_QNET, "D3RQN"), str(SHIPPED_QNET)
         return QNetPolicy(QNet(QNetConfig(), rng=0), "D3RQN (untrained)"), "untrained"
@@ -195,7 +199,8 @@ class _TimedEstimator:
 
 
 def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int = 1,
-                    depth_model: str | None = None, flip: bool = False) -> dict:
+                    depth_model: str | None = None, flip: bool = False,
+                    qnet: str | None = None) -> dict:
     """Render -> DispNet -> Q-net step -> world step for ``n_flights`` flights in lockstep
     (batched over flights): frames per second (= Hz per flight when n_flights = 1).
 
@@ -205,11 +210,12 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
     session the loop also re-rendered and re-predicted the current pose before acting,
     doing the perception twice per step; ``rendered_twice`` runs that old loop.)
     ``depth_model``: another DispNet file (e.g. a two-frame one, train-depth --prev-frame).
-    ``flip``: the DispNet's test-time flip (``--flip-tta``: two DispNet passes per frame)."""
+    ``flip``: the DispNet's test-time flip (``--flip-tta``: two DispNet passes per frame).
+    ``qnet``: another Q-net file (``--qnet``; e.g. a wider LSTM) instead of the shipped one."""
     import numpy as np
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.flights import Flights
-    policy, model = _qnet_model(ensemble)
+    policy, model = _qnet_model(ensemble, qnet)
     depth_path = Path(depth_model) if depth_model else shipped_depth_model("basic")
     if depth_path.exists():
         est, depth_name = load_depth_estimator(depth_path, flip), f"DispNet {depth_path.name}"
@@ -285,10 +291,11 @@ def bench_framework_rendered_twice(repeat: int, threads: int, n_flights: int = 1
             "note": "the old loop: perception twice per step"}
 
 
-def bench_eval(flights: int, threads: int, workers: int = 1, ensemble: int = 1) -> list:
+def bench_eval(flights: int, threads: int, workers: int = 1, ensemble: int = 1,
+               qnet: str | None = None) -> list:
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.evaluate import evaluate_policy
-    policy, model = _qnet_model(ensemble)
+    policy, model = _qnet_model(ensemble, qnet)
     outs = []
     modes = [("gt", None)]
     if shipped_depth_model("basic").exists():
@@ -313,14 +320,15 @@ def child(args) -> None:
         for n_flights in (1, 16):
             print(json.dumps(bench_framework(args.repeat, args.threads, n_flights,
                                              args.ensemble, args.depth_model,
-                                             args.flip_tta)), flush=True)
+                                             args.flip_tta, args.qnet)), flush=True)
     if "framework_old" in parts:
         for n_flights in (1, 16):
             print(json.dumps(bench_framework_rendered_twice(args.repeat, args.threads,
                                                             n_flights)), flush=True)
     if "eval" in parts:
         for workers in [int(w) for w in args.eval_workers.split(",")]:
-            for row in bench_eval(args.eval_flights, args.threads, workers, args.ensemble):
+            for row in bench_eval(args.eval_flights, args.threads, workers, args.ensemble,
+                                  args.qnet):
                 print(json.dumps(row), flush=True)
 
 
@@ -339,6 +347,8 @@ def main():
                    help="framework part: this DispNet file instead of the shipped one")
     p.add_argument("--flip-tta", action="store_true",
                    help="framework part: the DispNet's test-time flip (two passes per frame)")
+    p.add_argument("--qnet", default=None,
+                   help="framework and eval parts: this Q-net file instead of the shipped one")
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.child:
@@ -355,6 +365,10 @@ def main():
         cmd += ["--depth-model", args.depth_model]
     if args.flip_tta:
         cmd += ["--flip-tta"]
+    if args.qnet:
+        if not Path(args.qnet).is_file():
+            p.error(f"--qnet: expected a Q-net .npz file; got {args.qnet!r} (not a file)")
+        cmd += ["--qnet", args.qnet]
     sys.exit(subprocess.run(cmd, env=env).returncode)
 
 
