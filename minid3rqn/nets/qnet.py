@@ -139,6 +139,7 @@ def widen_recurrent_state(old: dict, fresh: dict) -> dict:
             out[f"{head}.bias"][...] = old[f"{head}.bias"]
     return out
 
+
 class QNet(Module):
     """Conv torso, LSTM or FC core, dueling or plain head. See the module docstring."""
 
@@ -299,4 +300,5 @@ def variant_name(config: QNetConfig) -> str:
     raise AssertionError("unreachable")
 
 
-__all__ = ["QNet", "QNetConfig", "VARIANTS", "build_qnet", "variant_name", "conv_out"]
+__all__ = ["QNet", "QNetConfig", "VARIANTS", "build_qnet", "variant_name", "conv_out",
+           "widen_recurrent_state"]
