@@ -51,3 +51,39 @@ def load_npz(path) -> tuple[dict[str, np.ndarray], dict | None]:
         arrays = {k: data[k] for k in data.files}
     meta = arrays.pop("__metadata__", None)
     return arrays, (json.loads(str(meta)) if meta is not None else None)
+
+
+def blas_core() -> str:
+    """The CPU kernel set NumPy's OpenBLAS chose on this machine ("Haswell", "SkylakeX", ...),
+    or "unknown" where it cannot be asked (another BLAS, another wheel layout).
+
+    Why it matters: OpenBLAS is built for many CPUs at once (``DYNAMIC_ARCH``) and picks
+    its matrix kernels for the CPU it finds. Kernels for different CPUs add up a product's
+    terms in a different order (and fuse multiply-adds differently), so float32 results differ in the last bits, and a long RL
+    run, where one different action sends every later step elsewhere, ends as another
+    draw of the same recipe. The same seed gives the same run on machines with the same
+    kernel; the environment variable ``OPENBLAS_CORETYPE`` (set before NumPy is imported)
+    chooses one by hand. Training commands record this name in their model files.
+    """
+    import ctypes
+    import glob
+    libs = Path(np.__file__).resolve().parent.parent / "numpy.libs"
+    for lib in sorted(glob.glob(str(libs / "*openblas*"))):
+        try:
+            handle = ctypes.CDLL(lib)
+        except OSError:
+            continue
+        for name in ("scipy_openblas_get_corename64_", "openblas_get_corename64_",
+                     "scipy_openblas_get_corename", "openblas_get_corename"):
+            fn = getattr(handle, name, None)
+            if fn is not None:
+                fn.restype = ctypes.c_char_p
+                return fn().decode("ascii", "replace")
+    return "unknown"
+
+
+def machine() -> dict:
+    """What a saved model records of the machine that trained it (see ``blas_core``)."""
+    import platform
+    return {"numpy": np.__version__, "blas_core": blas_core(),
+            "python": platform.python_version(), "platform": platform.machine()}

@@ -29,6 +29,7 @@ def test_collect_train_eval_smoke(tmp_path, capsys):
     meta = json.loads((run / "results.json").read_text())
     assert meta["seed"] == 0 and meta["command"].startswith("python -m minid3rqn train-depth")
     assert "--seed 0" in meta["command"] and "--smoke" in meta["command"]
+    assert meta["machine"]["numpy"] == np.__version__ and meta["machine"]["blas_core"]
     # resume: a finished run resumes at its last iteration and does no more work
     assert _run(["train-depth", "--smoke", "--quiet", "--resume", "--dir", str(run)]) == 0
     assert "resuming at iteration 3" in capsys.readouterr().out

@@ -135,6 +135,26 @@ def test_same_seed_same_network():
     assert not np.array_equal(a.weight.data, Linear(5, 3, rng=8).weight.data)
 
 
+def test_blas_core_names_the_kernels_openblas_runs():
+    """io.blas_core reports OpenBLAS's kernel choice, which OPENBLAS_CORETYPE can set: the
+    reason a long run's numbers can differ between CPUs (docs/results.md, "Determinism")."""
+    import os
+    import platform
+    import subprocess
+    import sys
+    from minid3rqn.io import blas_core, machine
+    core = blas_core()
+    assert isinstance(core, str) and core
+    assert machine()["blas_core"] == core and machine()["numpy"] == np.__version__
+    if core == "unknown" or platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip(f"no OpenBLAS kernel choice to check here ({core}, {platform.machine()})")
+    env = dict(os.environ, OPENBLAS_CORETYPE="Sandybridge")     # any x86-64 CPU with AVX
+    got = subprocess.run([sys.executable, "-c", "from minid3rqn.io import blas_core; "
+                          "print(blas_core())"], env=env, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert got == "Sandybridge"
+
+
 @pytest.mark.nets
 def test_linear_gradcheck_through_the_layer():
     layer = Linear(3, 2, rng=0).astype(np.float64)

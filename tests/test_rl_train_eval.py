@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from minid3rqn.io import load_npz
 from minid3rqn.nets.qnet import QNetConfig
 from minid3rqn.rl import commands
 from minid3rqn.rl.evaluate import evaluate_policy, wilson_interval
@@ -188,6 +189,8 @@ def test_cli_smoke(tmp_path):
     assert commands.run_train_agent(args) == 0
     model = tmp_path / "run" / "model.npz"
     assert model.exists()
+    _, meta = load_npz(model)              # the machine that trained it (io.machine)
+    assert set(meta["machine"]) == {"numpy", "blas_core", "python", "platform"}
     p = argparse.ArgumentParser()
     commands.add_arguments_evaluate(p)
     args = p.parse_args([str(model), "random", "--flights", "4", "--steps", "10", "--quiet",

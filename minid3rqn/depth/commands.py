@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io import machine
+
 RUNS = Path("runs/depth")
 TEST_SEED_OFFSET = 1000
 
@@ -385,6 +387,7 @@ def run_train_depth(args) -> int:
             "config": cfg.to_dict(), "results": results,
             "train_frames": len(train), "test_frames": len(test),
             "train_seconds": round(t_train, 1), "data_seconds": round(t_data, 1),
+            "machine": machine(),
             "history": trainer.history[-1:] if trainer.history else []}
     estimator.save(paths["model"], meta)
     (paths["dir"] / "results.json").write_text(json.dumps(meta, indent=2))

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..depth.commands import add_argument_horizon_row
+from ..io import machine
 from .flights import ENCODINGS
 
 MODELS = Path(__file__).resolve().parent.parent / "models"
@@ -351,7 +352,7 @@ def run_train_agent(args) -> int:
              "train_seconds": round(time.time() - t0, 1),
              "depth_model": str(args.depth_model or (shipped_depth_model(cfg.scenario)
                                                      if cfg.depth == "pred" else "")),
-             "depth_flip": bool(est is not None and est.flip)}
+             "depth_flip": bool(est is not None and est.flip), "machine": machine()}
     model = tr.save_model(out / "model.npz", extra)
     print(json.dumps({"model": str(model), "steps": tr.steps, "updates": tr.agent.updates,
                       "last": tr.curve[-1] if tr.curve else {}}))
