@@ -58,12 +58,14 @@ def blas_core() -> str:
     or "unknown" where it cannot be asked (another BLAS, another wheel layout).
 
     Why it matters: OpenBLAS is built for many CPUs at once (``DYNAMIC_ARCH``) and picks
-    its matrix kernels for the CPU it finds. Kernels for different CPUs add up a product's
-    terms in a different order (and fuse multiply-adds differently), so float32 results differ in the last bits, and a long RL
-    run, where one different action sends every later step elsewhere, ends as another
-    draw of the same recipe. The same seed gives the same run on machines with the same
-    kernel; the environment variable ``OPENBLAS_CORETYPE`` (set before NumPy is imported)
-    chooses one by hand. Training commands record this name in their model files.
+    its matrix kernels for the CPU it finds. Kernels for different CPUs add up a
+    product's terms in a different order (and fuse multiply-adds differently), so float32
+    results differ in the last bits, and a long RL run, where one different action sends
+    every later step elsewhere, ends as another draw of the same recipe. The same seed
+    gives the same run on machines with the same kernels; the environment variable
+    ``OPENBLAS_CORETYPE`` (set before NumPy is imported) chooses them by hand. Training
+    commands record this name in their model files (docs/results.md, "Determinism across
+    machines").
     """
     import ctypes
     import glob
