@@ -182,7 +182,7 @@ def test_oracle_flies_the_channel():
     assert res.rate >= 0.75
 
 
-def test_cli_smoke(tmp_path):
+def test_cli_smoke(tmp_path, capsys):
     p = argparse.ArgumentParser()
     commands.add_arguments_train_agent(p)
     args = p.parse_args(["--smoke", "--quiet", "--out", str(tmp_path / "run")])
@@ -197,6 +197,8 @@ def test_cli_smoke(tmp_path):
                          "--json", str(tmp_path / "r.jsonl")])
     assert commands.run_evaluate(args) == 0
     assert len((tmp_path / "r.jsonl").read_text().splitlines()) == 2
+    printed = capsys.readouterr().out.splitlines()         # each line names what flew
+    assert printed[-2].endswith(f"  {model} (gt depth)") and printed[-1].startswith("Random")
     if SHIPPED_DEPTH.exists():                        # predicted depth, flip-averaged
         args = p.parse_args([str(model), "--flights", "2", "--steps", "3", "--quiet",
                              "--depth", "pred", "--flip-tta", "--json",

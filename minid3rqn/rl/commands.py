@@ -460,6 +460,17 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true")
 
 
+def _what_flew(spec: str, depth: str, est, mirror: bool) -> str:
+    """The tail of an evaluation's printed line: which model files flew, on which depth.
+
+    Two evaluations that append to one log can then be told apart (the JSON lines of
+    ``--json`` carry the same and more)."""
+    how = [f"{depth} depth"] + (["flip"] if est is not None and est.flip else [])
+    if spec in BASELINES:                # of these only the reactive rule reads depth
+        return f"  ({', '.join(how)})" if spec == "reactive" else ""
+    return f"  {spec} ({', '.join(how + (['mirror'] if mirror else []))})"
+
+
 def run_evaluate(args) -> int:
     from .evaluate import evaluate_policy
     from .policies import ReactivePolicy
@@ -480,7 +491,7 @@ def run_evaluate(args) -> int:
         res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
                               args.chunk, args.depth, est, progress=not args.quiet,
                               workers=args.workers, flights_config=cfg)
-        print(res.line(), flush=True)
+        print(res.line() + _what_flew(spec, args.depth, est, args.mirror), flush=True)
         if args.json:
             with open(args.json, "a") as f:
                 f.write(json.dumps({**res.to_dict(), "spec": spec,
