@@ -67,6 +67,23 @@ def test_reductions(op, axis, keepdims):
     gradcheck(lambda x: op(x, axis=axis, keepdims=keepdims), [rand(2, 3, 4, seed=6)])
 
 
+@pytest.mark.parametrize("axis", [0, 1, -1])
+def test_log_softmax_gradcheck(axis):
+    gradcheck(lambda x: ag.log_softmax(x, axis=axis), [rand(2, 3, 4, seed=7)])
+
+
+def test_log_softmax_values_and_no_overflow():
+    x = np.array([[1.0, 2.0, 3.0], [1000.0, 0.0, -1000.0]])
+    y = ag.log_softmax(Tensor(x)).data
+    ref = np.log(np.exp([1.0, 2.0, 3.0]) / np.exp([1.0, 2.0, 3.0]).sum())
+    np.testing.assert_allclose(y[0], ref)
+    assert np.all(np.isfinite(y)) and y[1, 0] == 0.0
+    np.testing.assert_allclose(np.exp(y).sum(axis=-1), 1.0)
+    # adding a constant along the axis changes nothing (only differences matter)
+    np.testing.assert_allclose(ag.log_softmax(Tensor(x[:1] + 5.0)).data, y[:1])
+    assert ag.log_softmax(Tensor(x.astype(np.float32))).dtype == np.float32
+
+
 def test_max_shares_gradient_among_ties():
     x = Tensor(np.array([1.0, 3.0, 3.0]), requires_grad=True)
     ag.max(x).backward()
@@ -184,6 +201,10 @@ def test_bad_inputs_raise_clear_errors():
         ag.reshape(Tensor(np.ones(6)), (4, 2))
     with pytest.raises(ValueError, match="axis 3 is out of range"):
         ag.sum(Tensor(np.ones((2, 2))), axis=3)
+    with pytest.raises(ValueError, match="log_softmax: axis 2 is out of range"):
+        ag.log_softmax(Tensor(np.ones((2, 2))), axis=2)
+    with pytest.raises(TypeError, match="log_softmax: axis must be one int"):
+        ag.log_softmax(Tensor(np.ones((2, 2))), axis=(0, 1))
     with pytest.raises(TypeError, match="float64"):
         gradcheck(lambda x: x, [np.ones(3, np.float32)])
     with pytest.raises(ValueError, match="single-element"):

@@ -281,3 +281,56 @@ def test_a_teacher_on_predicted_depth_reads_the_students_frames(tmp_path):
     args = p.parse_args(["--smoke", "--depth", "pred", "--teachers", TEACHER,
                          "--teacher-depth", "pred", "--out", str(tmp_path / "cli")])
     assert commands.config_from_args(args).teacher_depth == "pred"
+
+
+def test_the_kl_term_sees_only_action_preferences_and_is_gradient_checked(tmp_path):
+    """L_KL is 0 when the student prefers actions as the teacher does, whatever the Q-values'
+    level; positive otherwise; padded steps count for nothing; its gradient is checked
+    against central differences (float64)."""
+    from minid3rqn import autograd as ag
+    d = Distiller(small_config(distil_kl=1.0, distil_temperature=0.5), tmp_path, progress=False)
+    rng = np.random.default_rng(0)
+    labels = rng.normal(14.0, 1.0, (5, 3, 5))
+    mask = np.ones((5, 3))
+    mask[3:, 2] = 0.0                                   # an episode that ended early
+    same = d.kl_term(ag.Tensor(labels - 3.0), labels, mask)
+    assert abs(float(same.data)) < 1e-12
+    q = rng.normal(14.0, 1.0, (5, 3, 5))
+    assert float(d.kl_term(ag.Tensor(q), labels, mask).data) > 0
+    q_pad = q.copy()
+    q_pad[3:, 2] += rng.normal(0, 5.0, (2, 5))          # change only the padded steps
+    assert float(d.kl_term(ag.Tensor(q_pad), labels, mask).data) == pytest.approx(
+        float(d.kl_term(ag.Tensor(q), labels, mask).data))
+    ag.gradcheck(lambda t: d.kl_term(t, labels, mask), [q])
+
+
+def test_distillation_with_the_kl_term_lowers_it_on_a_fixed_batch(tmp_path):
+    cfg = small_config(total_steps=64, learning_starts=10 ** 6, agent=AgentConfig(lr=1e-2),
+                       distil_kl=1.0, distil_temperature=0.1)
+    d = Distiller(cfg, tmp_path, progress=False)
+    d.run()
+    batch = d.replay.sample(8, seq_len=5)
+    kls = [d.learn(batch)["kl"] for _ in range(25)]
+    assert np.isfinite(kls).all() and kls[-1] < kls[0]
+
+
+def test_distillation_with_the_kl_term_resumes_exactly(tmp_path):
+    """The KL settings travel in the checkpoint: a resumed run ends on the same weights."""
+    a = run_and_resume(Distiller, small_config(distil_kl=1.0, distil_temperature=0.1),
+                       tmp_path / "a", until=48)
+    assert a.cfg.distil_kl == 1.0
+
+
+def test_bad_kl_settings_get_clear_errors(tmp_path):
+    with pytest.raises(ValueError, match="distil_kl"):
+        Distiller(small_config(distil_kl=-1.0), tmp_path, progress=False)
+    with pytest.raises(ValueError, match="distil_temperature"):
+        Distiller(small_config(distil_kl=1.0, distil_temperature=0.0), tmp_path, progress=False)
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    for argv, match in [(["--distil-kl", "1"], "needs --teachers"),
+                        (["--teachers", TEACHER, "--distil-kl", "nan"], "weight >= 0"),
+                        (["--teachers", TEACHER, "--distil-temperature", "-1"], "temperature > 0")]:
+        args = p.parse_args(["--smoke", "--quiet", "--out", str(tmp_path / "cli"), *argv])
+        with pytest.raises(SystemExit, match=match):
+            commands.run_train_agent(args)

@@ -8,7 +8,7 @@ from .engine import Tensor, no_grad, is_grad_enabled, as_tensor, unbroadcast
 from .elementwise import (add, sub, mul, div, neg, pow, exp, log, sqrt, abs, astype,
                           relu, elu, sigmoid, tanh, softplus, clip, where, maximum,
                           minimum, matmul)
-from .reduce import sum, mean, max
+from .reduce import sum, mean, max, log_softmax
 from .shape import reshape, transpose, getitem, concat, stack, pad, flatten
 from .gradcheck import gradcheck, GradcheckError
 from .lstm import lstm_cell, lstm, lstm_cell_reference

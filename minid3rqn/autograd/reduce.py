@@ -1,4 +1,4 @@
-"""Reductions: sum, mean, max over axes, with their vector-Jacobian products.
+"""Reductions: sum, mean, max, log_softmax over axes, with their vector-Jacobian products.
 
 A reduction removes axes; its gradient puts them back (``keepdims`` shape) and
 broadcasts ``g`` over them, because every reduced entry influenced the result.
@@ -69,4 +69,27 @@ def max(x, axis=None, keepdims: bool = False) -> Tensor:
     return Tensor.from_op(np.asarray(y), (x,), vjp, "max")
 
 
-__all__ = ["sum", "mean", "max"]
+def log_softmax(x, axis: int = -1) -> Tensor:
+    """y_i = x_i - log sum_j exp(x_j) over ``axis`` (one axis; the shape is kept).
+
+    Computed as (x_i - m) - log sum_j exp(x_j - m) with m = max_j x_j, so no exp
+    overflows. With p = softmax(x) = exp(y), dy_i/dx_k = [i = k] - p_k, hence
+
+        dL/dx_k = g_k - p_k * sum_i g_i.
+    """
+    x = as_tensor(x)
+    if isinstance(axis, bool) or not isinstance(axis, (int, np.integer)):
+        raise TypeError(f"log_softmax: axis must be one int; got {axis!r}")
+    (ax,) = _axes(axis, x.ndim, "log_softmax")
+    if x.ndim == 0:
+        raise ValueError("log_softmax: needs at least one axis; got a 0-d tensor")
+    shifted = x.data - np.max(x.data, axis=ax, keepdims=True)
+    y = shifted - np.log(np.sum(np.exp(shifted), axis=ax, keepdims=True))
+
+    def vjp(g):
+        return (g - np.exp(y) * np.sum(g, axis=ax, keepdims=True),)
+
+    return Tensor.from_op(y.astype(x.dtype, copy=False), (x,), vjp, "log_softmax")
+
+
+__all__ = ["sum", "mean", "max", "log_softmax"]

@@ -240,6 +240,12 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                    help="what the teacher reads: gt, the privileged GT depth (default), or "
                         "pred, the student's own predicted-depth frames (for a teacher of "
                         "nets that fly on predicted depth; needs --depth pred; ours)")
+    p.add_argument("--distil-kl", type=float, default=d.distil_kl, metavar="W",
+                   help="add W times a KL term on the teacher's action preferences, "
+                        "softmax(Q / --distil-temperature), to the Huber loss (--teachers; "
+                        "ours; 0, the default: Huber only)")
+    p.add_argument("--distil-temperature", type=float, default=d.distil_temperature,
+                   metavar="T", help="temperature of --distil-kl, in Q-value units")
     p.add_argument("--mirror-augment", action="store_true",
                    help="training augmentation (ours): learn from each sampled window "
                         "mirrored left-right with probability 1/2 (frames flipped, actions "
@@ -269,6 +275,7 @@ def config_from_args(args):
                       teachers=args.teachers, teacher_mix=args.teacher_mix,
                       teacher_mix_steps=args.teacher_mix_steps,
                       teacher_mirror=args.teacher_mirror, teacher_depth=args.teacher_depth,
+                      distil_kl=args.distil_kl, distil_temperature=args.distil_temperature,
                       mirror_augment=args.mirror_augment)
     if args.conv_channels is not None:
         try:
@@ -303,6 +310,14 @@ def config_from_args(args):
         raise SystemExit(f"train-agent --scene-mix {args.scene_mix:g}: a mixed pool needs "
                          f"--scene KEY=VALUE (the parameters of its changed worlds)")
     cfg.flights.scene_mix = args.scene_mix
+    if args.distil_kl != 0.0 and not cfg.teachers:
+        raise SystemExit(f"train-agent --distil-kl {args.distil_kl:g}: a term of the "
+                         f"distillation loss, so it needs --teachers")
+    if not (np.isfinite(args.distil_kl) and args.distil_kl >= 0):
+        raise SystemExit(f"train-agent --distil-kl: expected a weight >= 0; got {args.distil_kl!r}")
+    if not (np.isfinite(args.distil_temperature) and args.distil_temperature > 0):
+        raise SystemExit(f"train-agent --distil-temperature: expected a temperature > 0 (Q-value "
+                         f"units); got {args.distil_temperature!r}")
     if cfg.teacher_depth == "pred" and not (cfg.teachers and cfg.depth == "pred"):
         raise SystemExit(f"train-agent --teacher-depth pred: the teacher reads the student's "
                          f"predicted depth, so it needs --teachers and --depth pred; got "

@@ -33,6 +33,20 @@ the teacher's:
 
     L = mean over unmasked (t, b) and actions a of Huber(Q_S(o_t, a) - Q_T(o_t, a))
 
+A second term, optional (``distil_kl`` > 0, ours): the Huber loss spends most of its
+effort on Q-values, and in most states of ``basic`` the teacher's best and second-best
+actions differ by a few hundredths (median 0.04 on Q-values near 14), far below the
+student's typical error; the greedy action, the only thing a flight uses, is then
+barely constrained. The KL divergence between the teacher's and the student's action
+preferences at temperature T (Hinton et al. 2015; Rusu et al. 2016),
+
+    L_KL = mean over unmasked (t, b) of sum_a p_T(a) [log p_T(a) - log p_S(a)],
+    p_T = softmax(Q_T(o_t, .) / T),  p_S = softmax(Q_S(o_t, .) / T),
+
+looks only at differences between actions, and weighs them by how much they differ
+compared with T: near-ties stay soft, clear preferences become near-certain targets.
+The loss is then L + distil_kl * L_KL.
+
 Rewards are still stored (the learning curve reports them) but not learned from. The
 student is a D3RQN like any other: ``evaluate`` and ``fly`` read its file unchanged.
 """
@@ -128,6 +142,12 @@ class Distiller(Trainer):
         if cfg.teacher_depth not in ("gt", "pred"):
             raise ValueError(f"Distiller: teacher_depth is 'gt' or 'pred'; got "
                              f"{cfg.teacher_depth!r}")
+        if not (np.isfinite(cfg.distil_kl) and cfg.distil_kl >= 0):
+            raise ValueError(f"Distiller: distil_kl (--distil-kl) is a weight >= 0; got "
+                             f"{cfg.distil_kl!r}")
+        if not (np.isfinite(cfg.distil_temperature) and cfg.distil_temperature > 0):
+            raise ValueError(f"Distiller: distil_temperature (--distil-temperature) is a "
+                             f"temperature > 0 in Q-value units; got {cfg.distil_temperature!r}")
         if cfg.teacher_depth == "pred" and cfg.depth != "pred":
             raise ValueError("Distiller: teacher_depth='pred' gives the teacher the student's "
                              f"predicted-depth frames, so it needs depth='pred'; got "
@@ -175,6 +195,11 @@ class Distiller(Trainer):
         per = huber_loss(q, batch.labels, delta=self.agent.config.huber_delta, reduction="none")
         mask = np.broadcast_to(batch.mask[:, :, None], batch.labels.shape).astype(np.float32)
         loss = ag.sum(per * mask) * (1.0 / max(1.0, float(mask.sum())))
+        info = {}
+        if self.cfg.distil_kl > 0:
+            kl = self.kl_term(q, batch.labels, batch.mask)
+            info["kl"] = float(kl.data)
+            loss = loss + kl * self.cfg.distil_kl
         opt = self.agent.optimizer
         opt.zero_grad()
         loss.backward()
@@ -182,7 +207,19 @@ class Distiller(Trainer):
         opt.step()
         self.agent.updates += 1
         q_mean = float((q.data * mask).sum() / max(1.0, mask.sum()))
-        return {"loss": float(loss.data), "q_mean": q_mean, "grad_norm": grad_norm}
+        return {"loss": float(loss.data), "q_mean": q_mean, "grad_norm": grad_norm, **info}
+
+    def kl_term(self, q, labels: np.ndarray, mask: np.ndarray):
+        """L_KL of the module docstring: q (L, B, A) the student's Q-values (a Tensor),
+        labels (L, B, A) the teacher's, mask (L, B) the real (not padded) steps."""
+        t = float(self.cfg.distil_temperature)
+        z = labels.astype(q.dtype) / t
+        log_p_t = z - z.max(axis=-1, keepdims=True)
+        log_p_t = log_p_t - np.log(np.exp(log_p_t).sum(axis=-1, keepdims=True))
+        w = np.exp(log_p_t) * mask[:, :, None].astype(q.dtype)   # p_T, 0 on padded steps
+        log_p_s = ag.log_softmax(q * (1.0 / t), axis=-1)
+        kl = ag.sum((log_p_s * -1.0 + log_p_t) * w)
+        return kl * (1.0 / max(1.0, float(mask.sum())))
 
     # -- the learning curve and the checkpoint --------------------------------------
     def extra_row(self) -> dict:

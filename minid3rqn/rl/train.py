@@ -63,6 +63,9 @@ class TrainConfig:
     teacher_mirror: bool = False   # ours: each teacher net also flies the mirrored view
     teacher_depth: str = "gt"      # ours: what the teacher reads: gt (privileged) | pred (the
                                    # student's own frames: distilling nets that fly on them)
+    distil_kl: float = 0.0         # ours: weight of a KL term on the teacher's action
+                                   # preferences, softmax(Q_T / T), added to the Huber loss
+    distil_temperature: float = 0.1  # T of that term, in the units of the Q-values
     mirror_augment: bool = False   # ours: learn from each sampled window mirrored left-right
                                    # with probability 1/2 (SequenceBatch.mirrored)
     average_last: int = 0          # ours: the saved model is the mean of the online weights
