@@ -319,6 +319,7 @@ def test_distillation_with_the_kl_term_resumes_exactly(tmp_path):
     a = run_and_resume(Distiller, small_config(distil_kl=1.0, distil_temperature=0.1),
                        tmp_path / "a", until=48)
     assert a.cfg.distil_kl == 1.0
+    assert np.isfinite(a.curve[-1]["kl"]) and a.curve[-1]["kl"] >= 0
 
 
 def test_bad_kl_settings_get_clear_errors(tmp_path):

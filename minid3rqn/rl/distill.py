@@ -199,6 +199,7 @@ class Distiller(Trainer):
         if self.cfg.distil_kl > 0:
             kl = self.kl_term(q, batch.labels, batch.mask)
             info["kl"] = float(kl.data)
+            self._window.setdefault("kl", []).append(info["kl"])
             loss = loss + kl * self.cfg.distil_kl
         opt = self.agent.optimizer
         opt.zero_grad()
@@ -224,8 +225,12 @@ class Distiller(Trainer):
     # -- the learning curve and the checkpoint --------------------------------------
     def extra_row(self) -> dict:
         agree = self._window.get("agree", [])
-        return {"epsilon": 0.0, "teacher_mix": round(self.teacher_mix_at(self.steps), 4),
-                "agree": float(np.mean(agree)) if agree else float("nan")}
+        row = {"epsilon": 0.0, "teacher_mix": round(self.teacher_mix_at(self.steps), 4),
+               "agree": float(np.mean(agree)) if agree else float("nan")}
+        if self.cfg.distil_kl > 0:                       # L_KL alone (loss has L + W L_KL)
+            kl = self._window.get("kl", [])
+            row["kl"] = float(np.mean(kl)) if kl else float("nan")
+        return row
 
     def extra_state(self) -> dict[str, np.ndarray]:
         state = {f"teacher.{k}": v for k, v in self.teacher.state_dict().items()}
