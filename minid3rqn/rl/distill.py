@@ -214,9 +214,7 @@ class Distiller(Trainer):
         """L_KL of the module docstring: q (L, B, A) the student's Q-values (a Tensor),
         labels (L, B, A) the teacher's, mask (L, B) the real (not padded) steps."""
         t = float(self.cfg.distil_temperature)
-        z = labels.astype(q.dtype) / t
-        log_p_t = z - z.max(axis=-1, keepdims=True)
-        log_p_t = log_p_t - np.log(np.exp(log_p_t).sum(axis=-1, keepdims=True))
+        log_p_t = ag.log_softmax(ag.Tensor(labels.astype(q.dtype) / t), axis=-1).data
         w = np.exp(log_p_t) * mask[:, :, None].astype(q.dtype)   # p_T, 0 on padded steps
         log_p_s = ag.log_softmax(q * (1.0 / t), axis=-1)
         kl = ag.sum((log_p_s * -1.0 + log_p_t) * w)
