@@ -1,7 +1,12 @@
 """The ``reproduce`` pipeline end to end, with every budget at its smoke size."""
 import json
+from pathlib import Path
 
-from minid3rqn.rl.reproduce import FAMILY, TRANSFER, reproduce
+import numpy as np
+import pytest
+
+from minid3rqn.io import load_npz
+from minid3rqn.rl.reproduce import FAMILY, TRANSFER, reproduce, reproduce_distilled
 
 
 def test_reproduce_pipeline_smoke(tmp_path):
@@ -21,3 +26,57 @@ def test_reproduce_pipeline_smoke(tmp_path):
     saved = json.loads((tmp_path / "results.json").read_text())
     assert saved["table5"] == res["table5"]
     assert "Table 6" in (tmp_path / "results.md").read_text()
+
+
+def test_reproduce_distilled_smoke(tmp_path):
+    """The distilled recipe end to end at smoke size: four parents, the two stages (the
+    student's commands carrying the recipe's flags), the evaluations, and a second run
+    that resumes every stage from its finished checkpoint and ends with the same models."""
+    budget = {"smoke": True, "flights": 4}
+    res = reproduce_distilled(out=tmp_path, students=2, tables="5", skip_depth=True,
+                              budget=budget)
+    agents = tmp_path / "distil"
+    for name in ["parent_s0", "parent_s1", "parent_wide_s0", "parent_wide_s1", "stage1_gt",
+                 "stage2_student_s0", "stage2_student_s1"]:
+        assert (agents / name / "model.npz").exists(), name
+    meta = load_npz(agents / "stage2_student_s1" / "model.npz")[1]
+    for flag in ["--seed 1", "--depth pred", "--mirror-augment", "--distil-kl 1",
+                 "--distil-temperature 0.1", "--teachers " + str(agents / "parent_s0"),
+                 "--init-model " + str(agents / "stage1_gt" / "model.npz")]:
+        assert flag in meta["command"], (flag, meta["command"])
+    stage1 = load_npz(agents / "stage1_gt" / "model.npz")[1]["command"]
+    assert "--init-widen" in stage1 and "--depth gt" in stage1, stage1
+    assert [r["scenario"] for r in res["students"]] == ["basic", "basic"]
+    assert all(r["depth"] == "pred" for r in res["students"])
+    assert res["teacher"]["depth"] == "gt" and res["teacher"]["spec"].count("+") == 3
+    saved = json.loads((agents / "results.json").read_text())
+    assert saved["students"] == res["students"]
+    assert "target" in (agents / "results.md").read_text()
+    # run again: every stage resumes from its finished checkpoint
+    before = {p: load_npz(p)[0] for p in agents.glob("*/model.npz")}
+    again = reproduce_distilled(out=tmp_path, students=2, tables="5", skip_depth=True,
+                                budget=budget)
+    assert [r["rate"] for r in again["students"]] == [r["rate"] for r in res["students"]]
+    for p, arrays in before.items():
+        after = load_npz(p)[0]
+        assert set(after) == set(arrays), p
+        for k in arrays:
+            assert np.array_equal(after[k], arrays[k]), (p, k)
+
+
+def test_reproduce_students_error():
+    with pytest.raises(ValueError, match="students must be >= 1; got 0"):
+        reproduce_distilled(out=Path("unused"), students=0)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--students", "0"], "--students: expected a number of students >= 1; got 0"),
+    (["--students", "2"], "--students 2: only for --recipe distil"),
+    (["--recipe", "distil", "--depth", "gt"], "--recipe distil: its stages are fixed"),
+])
+def test_reproduce_cli_errors(argv, message, tmp_path):
+    """Settings the recipes cannot honour stop before any training, naming the flag."""
+    from minid3rqn.cli import main
+    with pytest.raises(SystemExit, match=message):
+        main(["reproduce", "--out", str(tmp_path), *argv])
+    assert not any(tmp_path.iterdir())

@@ -331,7 +331,9 @@ def run_name(cfg) -> str:
     return f"{cfg.variant}{stack}{distil}_{cfg.scenario}_{cfg.depth}_s{cfg.seed}"
 
 
-def run_train_agent(args) -> int:
+def run_train_agent(args, command: str | None = None) -> int:
+    """``command``: the command line to record in the model file (default: this
+    process's; ``reproduce`` passes the equivalent ``train-agent`` one)."""
     from .train import train
     cfg = config_from_args(args)
     if cfg.teachers:                      # a bad teacher spec: say so before any training
@@ -363,7 +365,7 @@ def run_train_agent(args) -> int:
     cfg.flights.encoding = encoding_for("train-agent", args.encoding, known)
     t0 = time.time()
     tr = train(cfg, out, depth_estimator=est, progress=not args.quiet, resume=args.resume)
-    extra = {"command": _command_line(), "seed": cfg.seed,
+    extra = {"command": command or _command_line(), "seed": cfg.seed,
              "train_seconds": round(time.time() - t0, 1),
              "depth_model": str(args.depth_model or (shipped_depth_model(cfg.scenario)
                                                      if cfg.depth == "pred" else "")),
@@ -486,36 +488,44 @@ def _what_flew(spec: str, depth: str, est, mirror: bool) -> str:
     return f"  {spec} ({', '.join(how + (['mirror'] if mirror else []))})"
 
 
-def run_evaluate(args) -> int:
+def evaluate_one(spec: str, args, est, scene) -> tuple:
+    """Fly one policy of an ``evaluate`` command (``args`` as parsed, ``est`` its depth
+    estimator, ``scene`` its parsed --scene): print its line, and return the result and
+    the record ``--json`` appends (``reproduce`` calls this too, so its figures are the
+    ``evaluate`` command's)."""
     from .evaluate import evaluate_policy
     from .policies import ReactivePolicy
     from .flights import FlightsConfig
+    pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES else None,
+                      mirror=args.mirror)
+    row = horizon_for("evaluate", args.horizon_row, est, [pol])
+    warning = unfinished_warning(pol)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
+    if isinstance(pol, ReactivePolicy):      # it reads the rows around the horizon
+        pol.horizon_row = row
+    cfg = FlightsConfig(horizon_row=row, encoding=encoding_for("evaluate", None, [pol]),
+                        scene=scene)
+    res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
+                          args.chunk, args.depth, est, progress=not args.quiet,
+                          workers=args.workers, flights_config=cfg)
+    print(res.line() + _what_flew(spec, args.depth, est, args.mirror), flush=True)
+    record = {**res.to_dict(), "spec": spec,
+              "depth_flip": bool(est is not None and est.flip),
+              "mirror": bool(args.mirror and spec not in BASELINES),
+              "horizon_row": row, "encoding": cfg.encoding, "scene": scene,
+              "unfinished": warning is not None, "command": _command_line()}
+    return res, record
+
+
+def run_evaluate(args) -> int:
     est = _estimator_for(args.depth, args.depth_model, args.scenario, args.flip_tta)
     scene = parse_scene(args.scene, args.scenario, "evaluate --scene")
     for spec in args.policies:
-        pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES
-                          else None, mirror=args.mirror)
-        row = horizon_for("evaluate", args.horizon_row, est, [pol])
-        warning = unfinished_warning(pol)
-        if warning:
-            print(warning, file=sys.stderr, flush=True)
-        if isinstance(pol, ReactivePolicy):      # it reads the rows around the horizon
-            pol.horizon_row = row
-        cfg = FlightsConfig(horizon_row=row, encoding=encoding_for("evaluate", None, [pol]),
-                            scene=scene)
-        res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
-                              args.chunk, args.depth, est, progress=not args.quiet,
-                              workers=args.workers, flights_config=cfg)
-        print(res.line() + _what_flew(spec, args.depth, est, args.mirror), flush=True)
+        _, record = evaluate_one(spec, args, est, scene)
         if args.json:
             with open(args.json, "a") as f:
-                f.write(json.dumps({**res.to_dict(), "spec": spec,
-                                    "depth_flip": bool(est is not None and est.flip),
-                                    "mirror": bool(args.mirror and spec not in BASELINES),
-                                    "horizon_row": row, "encoding": cfg.encoding,
-                                    "scene": scene,
-                                    "unfinished": warning is not None,
-                                    "command": _command_line()}) + "\n")
+                f.write(json.dumps(record) + "\n")
     return 0
 
 
@@ -598,10 +608,31 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
                    help="depth the Q-nets are trained on (default gt; tested on --depth)")
     p.add_argument("--workers", type=int, default=1,
                    help="processes for the evaluations (evaluate --workers)")
+    p.add_argument("--recipe", choices=["paper", "distil"], default="paper",
+                   help="paper: Tables 5 and 6 as above; distil (ours): the distilled D3RQN "
+                        "that flies basic at 0.95 on predicted depth (four GT parents, two "
+                        "distillation stages; docs/results.md)")
+    p.add_argument("--students", type=int, default=1,
+                   help="--recipe distil: students of the second stage (seeds --seed, "
+                        "--seed + 1, ...)")
 
 
 def run_reproduce(args) -> int:
-    from .reproduce import reproduce
+    from .reproduce import reproduce, reproduce_distilled
+    if args.students < 1:
+        raise SystemExit(f"reproduce --students: expected a number of students >= 1; got "
+                         f"{args.students}")
+    if args.recipe == "distil":
+        if args.depth != "pred" or args.train_depth != "gt":
+            raise SystemExit(f"reproduce --recipe distil: its stages are fixed (GT depth, then "
+                             f"predicted depth) and its students fly on predicted depth; got "
+                             f"--depth {args.depth} --train-depth {args.train_depth}")
+        reproduce_distilled(out=Path(args.out), quick=args.quick, seed=args.seed,
+                            students=args.students, skip_depth=args.skip_depth,
+                            tables=args.table, workers=args.workers)
+        return 0
+    if args.students != 1:
+        raise SystemExit(f"reproduce --students {args.students}: only for --recipe distil")
     reproduce(out=Path(args.out), quick=args.quick, seed=args.seed, depth=args.depth,
               skip_depth=args.skip_depth, tables=args.table, train_depth=args.train_depth,
               workers=args.workers)
