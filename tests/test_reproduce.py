@@ -28,14 +28,19 @@ def test_reproduce_pipeline_smoke(tmp_path):
     assert "Table 6" in (tmp_path / "results.md").read_text()
 
 
+def _weights(agents):
+    return {p.parent.name: load_npz(p)[0] for p in sorted(agents.glob("*/model.npz"))}
+
+
 def test_reproduce_distilled_smoke(tmp_path):
-    """The distilled recipe end to end at smoke size: four parents, the two stages (the
-    student's commands carrying the recipe's flags), the evaluations, and a second run
-    that resumes every stage from its finished checkpoint and ends with the same models."""
+    """The distilled recipe end to end at smoke size: four parents (two at a time in
+    forked processes), the two stages (the student's commands carrying the recipe's
+    flags), the evaluations; the same models as one process after the other; and a
+    second run that resumes every stage from its finished checkpoint."""
     budget = {"smoke": True, "flights": 4}
-    res = reproduce_distilled(out=tmp_path, students=2, tables="5", skip_depth=True,
-                              budget=budget)
-    agents = tmp_path / "distil"
+    res = reproduce_distilled(out=tmp_path / "a", students=2, tables="5", skip_depth=True,
+                              budget=budget, workers=2)
+    agents = tmp_path / "a" / "distil"
     for name in ["parent_s0", "parent_s1", "parent_wide_s0", "parent_wide_s1", "stage1_gt",
                  "stage2_student_s0", "stage2_student_s1"]:
         assert (agents / name / "model.npz").exists(), name
@@ -52,16 +57,22 @@ def test_reproduce_distilled_smoke(tmp_path):
     saved = json.loads((agents / "results.json").read_text())
     assert saved["students"] == res["students"]
     assert "target" in (agents / "results.md").read_text()
-    # run again: every stage resumes from its finished checkpoint
-    before = {p: load_npz(p)[0] for p in agents.glob("*/model.npz")}
-    again = reproduce_distilled(out=tmp_path, students=2, tables="5", skip_depth=True,
+    first = _weights(agents)
+    # one process after the other: the same runs
+    serial = reproduce_distilled(out=tmp_path / "b", students=2, tables="5", skip_depth=True,
+                                 budget=budget, workers=1)
+    assert [r["rate"] for r in serial["students"]] == [r["rate"] for r in res["students"]]
+    for name, arrays in _weights(tmp_path / "b" / "distil").items():
+        assert set(arrays) == set(first[name]), name
+        for k in arrays:
+            assert np.array_equal(arrays[k], first[name][k]), (name, k)
+    # run again in the first folder: every stage resumes from its finished checkpoint
+    again = reproduce_distilled(out=tmp_path / "a", students=2, tables="5", skip_depth=True,
                                 budget=budget)
     assert [r["rate"] for r in again["students"]] == [r["rate"] for r in res["students"]]
-    for p, arrays in before.items():
-        after = load_npz(p)[0]
-        assert set(after) == set(arrays), p
+    for name, arrays in _weights(agents).items():
         for k in arrays:
-            assert np.array_equal(after[k], arrays[k]), (p, k)
+            assert np.array_equal(arrays[k], first[name][k]), (name, k)
 
 
 def test_reproduce_students_error():

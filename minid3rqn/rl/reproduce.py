@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing as mp
 import time
 from pathlib import Path
 
@@ -242,7 +243,7 @@ STUDENT = ["--lr", "1e-4", "--replay", "60000", "--updates-per-step", "4.0", "--
 STAGE2 = ["--mirror-augment", "--distil-kl", "1", "--distil-temperature", "0.1"]
 
 
-def _train_agent_cli(argv: list, run_dir: Path, budget: dict) -> Path:
+def _train_agent_cli(argv: list, run_dir: Path, budget: dict, quiet: bool = False) -> Path:
     """``python -m minid3rqn train-agent ARGV --out RUN_DIR``, resumed if it was cut off;
     returns the model file."""
     from .commands import run_train_agent
@@ -250,10 +251,24 @@ def _train_agent_cli(argv: list, run_dir: Path, budget: dict) -> Path:
     add_arguments_train_agent(p)
     argv = [*argv, "--out", str(run_dir), "--resume"] + (["--smoke"] if budget.get("smoke") else [])
     print(f"\n== train-agent {' '.join(argv)}", flush=True)
-    run_train_agent(p.parse_args(argv),
+    run_train_agent(p.parse_args(argv + (["--quiet"] if quiet else [])),
                     command=f"python -m minid3rqn train-agent {' '.join(argv)}  (by reproduce "
                             f"--recipe distil)")
     return run_dir / "model.npz"
+
+
+def _train_agent_task(task) -> Path:
+    return _train_agent_cli(*task, quiet=True)
+
+
+def _train_all(tasks: list, workers: int) -> list:
+    """Train independent runs (``_train_agent_cli``'s arguments each), ``workers`` at a
+    time in forked processes (one per core, no progress bars; the same runs as one after
+    the other: each is fixed by its own seed)."""
+    if workers <= 1 or len(tasks) == 1 or "fork" not in mp.get_all_start_methods():
+        return [_train_agent_cli(*t) for t in tasks]
+    with mp.get_context("fork").Pool(min(workers, len(tasks))) as pool:
+        return pool.map(_train_agent_task, tasks, chunksize=1)
 
 
 def _evaluate_cli(spec: str, scenario: str, budget: dict, seed: int, depth: str,
@@ -279,7 +294,9 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     ones) as in ``reproduce``, the four GT parents, stage 1, then ``students`` students
     of stage 2 (seeds ``seed``, ``seed`` + 1, ...), each flown on predicted depth in
     ``basic`` (and the transfer worlds), and the teacher on GT depth in ``basic``.
-    Everything lands in ``out/distil`` (results.json, results.md)."""
+    ``workers`` > 1 trains the parents (and the students) that many at a time, one
+    process per core, and flies the evaluations' chunks likewise. Everything lands in
+    ``out/distil`` (results.json, results.md)."""
     if students < 1:
         raise ValueError(f"reproduce_distilled: students must be >= 1; got {students}")
     budget = {**(QUICK if quick else FULL), **(budget or {})}
@@ -289,14 +306,12 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     agents = out / "distil"
     results = {"recipe": "distil", "budget": budget, "seed": seed, "students": [],
                "started": time.strftime("%Y-%m-%d %H:%M:%S")}
-    parents = []
-    for name, offset, torso in PARENTS:          # the shipped D3RQN's 240k recipe, GT depth
-        parents.append(_train_agent_cli(
-            ["--variant", "d3rqn", "--seed", str(seed + offset), "--steps", str(budget["steps"]),
-             "--learning-starts", str(budget["learning_starts"]),
-             "--eps-decay", str(budget["eps_decay"]), "--replay", "100000",
-             "--updates-per-step", str(budget["updates_per_step"]), *torso],
-            agents / name, budget))
+    parents = _train_all([                       # the shipped D3RQN's 240k recipe, GT depth
+        (["--variant", "d3rqn", "--seed", str(seed + offset), "--steps", str(budget["steps"]),
+          "--learning-starts", str(budget["learning_starts"]),
+          "--eps-decay", str(budget["eps_decay"]), "--replay", "100000",
+          "--updates-per-step", str(budget["updates_per_step"]), *torso],
+         agents / name, budget) for name, offset, torso in PARENTS], workers)
     teacher = "+".join(str(m) for m in parents)
     starts = str(budget["stage_learning_starts"])
     stage1 = _train_agent_cli(
@@ -305,14 +320,14 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
          "--init-widen", *STUDENT, "--teachers", teacher,
          "--teacher-mix-steps", str(budget["stage1_steps"] // 2)],
         agents / "stage1_gt", budget)
-    for k in range(students):
-        student = _train_agent_cli(
-            ["--variant", "d3rqn", "--seed", str(seed + k), "--steps", str(budget["stage2_steps"]),
-             "--learning-starts", starts, "--depth", "pred",
-             "--depth-model", str(depth_models["basic"]), "--init-model", str(stage1),
-             *STUDENT, "--teachers", teacher,
-             "--teacher-mix-steps", str(budget["stage2_steps"] // 2), *STAGE2],
-            agents / f"stage2_student_s{seed + k}", budget)
+    trained = _train_all([
+        (["--variant", "d3rqn", "--seed", str(seed + k), "--steps", str(budget["stage2_steps"]),
+          "--learning-starts", starts, "--depth", "pred",
+          "--depth-model", str(depth_models["basic"]), "--init-model", str(stage1),
+          *STUDENT, "--teachers", teacher,
+          "--teacher-mix-steps", str(budget["stage2_steps"] // 2), *STAGE2],
+         agents / f"stage2_student_s{seed + k}", budget) for k in range(students)], workers)
+    for student in trained:
         for sc in scenarios:
             results["students"].append(_evaluate_cli(str(student), sc, budget, seed, "pred",
                                                      depth_models[sc], workers))
