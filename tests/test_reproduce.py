@@ -81,6 +81,7 @@ def test_reproduce_students_error():
 
 
 @pytest.mark.parametrize("argv, message", [
+    (["--workers", "0"], "--workers: expected a number of processes >= 1; got 0"),
     (["--students", "0"], "--students: expected a number of students >= 1; got 0"),
     (["--students", "2"], "--students 2: only for --recipe distil"),
     (["--recipe", "distil", "--depth", "gt"], "--recipe distil: its stages are fixed"),

@@ -607,7 +607,9 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
     p.add_argument("--train-depth", default="gt", choices=["gt", "pred"],
                    help="depth the Q-nets are trained on (default gt; tested on --depth)")
     p.add_argument("--workers", type=int, default=1,
-                   help="processes for the evaluations (evaluate --workers)")
+                   help="processes for the evaluations (evaluate --workers); --recipe distil: "
+                        "also trains its parents and students that many at a time (one per "
+                        "core; run with OMP_NUM_THREADS=1)")
     p.add_argument("--recipe", choices=["paper", "distil"], default="paper",
                    help="paper: Tables 5 and 6 as above; distil (ours): the distilled D3RQN "
                         "that flies basic at 0.95 on predicted depth (four GT parents, two "
@@ -619,6 +621,9 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
 
 def run_reproduce(args) -> int:
     from .reproduce import reproduce, reproduce_distilled
+    if args.workers < 1:
+        raise SystemExit(f"reproduce --workers: expected a number of processes >= 1; got "
+                         f"{args.workers}")
     if args.students < 1:
         raise SystemExit(f"reproduce --students: expected a number of students >= 1; got "
                          f"{args.students}")
