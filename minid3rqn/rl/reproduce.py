@@ -225,9 +225,6 @@ def markdown_tables(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["reproduce", "reproduce_distilled", "markdown_tables", "PAPER_T5", "PAPER_T6"]
-
-
 # -- the distilled recipe (ours) -----------------------------------------------------------
 # Four parents trained as the shipped D3RQN's parent (240k transitions on GT depth): two
 # seeds of the paper's torso, two of the wide one (conv channels 8, 16, 16); their
@@ -352,3 +349,6 @@ def distilled_table(results: dict) -> str:
     lines.append(f"| teacher (the four parents), GT depth | basic | {t['rate']:.3f} | "
                  f"[{t['ci_low']:.3f}, {t['ci_high']:.3f}] | |")
     return "\n".join(lines) + "\n"
+
+
+__all__ = ["reproduce", "reproduce_distilled", "markdown_tables", "PAPER_T5", "PAPER_T6"]
