@@ -310,10 +310,11 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
           "--updates-per-step", str(budget["updates_per_step"]), *torso],
          agents / name, budget) for name, offset, torso in PARENTS], workers)
     teacher = "+".join(str(m) for m in parents)
+    start_from = dict(zip((name for name, _, _ in PARENTS), parents))["parent_wide_s0"]
     starts = str(budget["stage_learning_starts"])
     stage1 = _train_agent_cli(
         ["--variant", "d3rqn", "--seed", str(seed), "--steps", str(budget["stage1_steps"]),
-         "--learning-starts", starts, "--depth", "gt", "--init-model", str(parents[2]),
+         "--learning-starts", starts, "--depth", "gt", "--init-model", str(start_from),
          "--init-widen", *STUDENT, "--teachers", teacher,
          "--teacher-mix-steps", str(budget["stage1_steps"] // 2)],
         agents / "stage1_gt", budget)
