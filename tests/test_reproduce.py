@@ -51,6 +51,7 @@ def test_reproduce_distilled_smoke(tmp_path):
         assert flag in meta["command"], (flag, meta["command"])
     stage1 = load_npz(agents / "stage1_gt" / "model.npz")[1]["command"]
     assert "--init-widen" in stage1 and "--depth gt" in stage1, stage1
+    assert "--init-model " + str(agents / "parent_wide_s0" / "model.npz") in stage1, stage1
     assert [r["scenario"] for r in res["students"]] == ["basic", "basic"]
     assert all(r["depth"] == "pred" for r in res["students"])
     assert res["teacher"]["depth"] == "gt" and res["teacher"]["spec"].count("+") == 3
