@@ -229,6 +229,10 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--teachers", default="",
                    help="distil instead of Q-learning (ours; rl/distill.py): the teacher's "
                         "Q-net .npz, or several joined by '+', flown on GT depth")
+    p.add_argument("--base-teachers", default="",
+                   help="in a mixed pool (--scene-mix < 1), a second teacher ('+'-joined "
+                        ".npz files) for the flights in the scenario's own worlds; the "
+                        "--teachers teach in the --scene worlds (ours; rl/distill.py)")
     p.add_argument("--teacher-mix", type=float, default=d.teacher_mix,
                    help="probability of flying the teacher's action at the start (--teachers)")
     p.add_argument("--teacher-mix-steps", type=int, default=d.teacher_mix_steps,
@@ -275,6 +279,7 @@ def config_from_args(args):
                       teachers=args.teachers, teacher_mix=args.teacher_mix,
                       teacher_mix_steps=args.teacher_mix_steps,
                       teacher_mirror=args.teacher_mirror, teacher_depth=args.teacher_depth,
+                      base_teachers=args.base_teachers,
                       distil_kl=args.distil_kl, distil_temperature=args.distil_temperature,
                       mirror_augment=args.mirror_augment)
     if args.conv_channels is not None:
@@ -310,6 +315,10 @@ def config_from_args(args):
         raise SystemExit(f"train-agent --scene-mix {args.scene_mix:g}: a mixed pool needs "
                          f"--scene KEY=VALUE (the parameters of its changed worlds)")
     cfg.flights.scene_mix = args.scene_mix
+    if args.base_teachers and not (cfg.teachers and cfg.flights.scene and args.scene_mix < 1.0):
+        raise SystemExit("train-agent --base-teachers: the teacher of the scenario's own worlds "
+                         "in a mixed pool, so it needs --teachers (for the --scene worlds), "
+                         "--scene KEY=VALUE and --scene-mix < 1")
     if args.distil_kl != 0.0 and not cfg.teachers:
         raise SystemExit(f"train-agent --distil-kl {args.distil_kl:g}: a term of the "
                          f"distillation loss, so it needs --teachers")
@@ -340,10 +349,12 @@ def run_train_agent(args, command: str | None = None) -> int:
         from ..world import ACTIONS, Camera
         from .distill import load_teacher
         cam = Camera()
-        try:
-            load_teacher(cfg.teachers, (cam.height, cam.width), len(ACTIONS))
-        except ValueError as e:
-            raise SystemExit(f"train-agent --teachers: {e}")
+        for flag, spec in (("--teachers", cfg.teachers), ("--base-teachers", cfg.base_teachers)):
+            try:
+                if spec:
+                    load_teacher(spec, (cam.height, cam.width), len(ACTIONS))
+            except ValueError as e:
+                raise SystemExit(f"train-agent {flag}: {e}")
     if cfg.init_widen:                    # a net that cannot be widened: say so first
         from ..io import load_npz
         from ..nets.qnet import QNet, widen_recurrent_state
@@ -359,7 +370,8 @@ def run_train_agent(args, command: str | None = None) -> int:
                                                            + run_name(cfg))
     est = _estimator_for(cfg.depth, args.depth_model, cfg.scenario, args.flip_tta)
     from .policies import QNetPolicy
-    known = [p for p in [cfg.init_model, *cfg.teachers.split("+")] if p]
+    known = [p for p in [cfg.init_model, *cfg.teachers.split("+"),
+                         *cfg.base_teachers.split("+")] if p]
     known = [QNetPolicy.load(p) for p in known if Path(p).is_file()]
     cfg.flights.horizon_row = horizon_for("train-agent", args.horizon_row, est, known)
     cfg.flights.encoding = encoding_for("train-agent", args.encoding, known)

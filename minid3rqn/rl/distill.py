@@ -27,6 +27,15 @@ predicted-depth frame instead of the GT one. The teacher is then not privileged:
 a set of nets that already fly on predicted depth (say, several students and their
 mirror images), and the student learns to fly as their ensemble does in one pass.
 
+A second variant (``base_teachers``, ours): in a mixed pool (``FlightsConfig.scene_mix`` <
+1, some worlds built with ``scene``, the rest the scenario as it is) each kind of world
+can have its own teacher, as in multi-task policy distillation (Rusu et al. 2016), where
+every task's expert labels that task's data: ``teachers`` label the flights in the
+changed worlds, ``base_teachers`` those in the scenario's own. Both fly every flight and
+carry their recurrent state through it (simple, at twice a teacher's cost); each
+flight keeps the labels and actions of its own world's teacher
+(``Flights.in_changed_world``).
+
 The update replaces the double-Q loss: on a window of L = 5 steps from a zero state
 (as in Q-learning, ``rl.agent``), the student's Q-values of every action regress onto
 the teacher's:
@@ -152,10 +161,20 @@ class Distiller(Trainer):
             raise ValueError("Distiller: teacher_depth='pred' gives the teacher the student's "
                              f"predicted-depth frames, so it needs depth='pred'; got "
                              f"depth={cfg.depth!r}")
+        if cfg.base_teachers and not (cfg.flights.scene and cfg.flights.scene_mix < 1.0):
+            raise ValueError(f"Distiller: base_teachers (--base-teachers) teach in the "
+                             f"scenario's own worlds of a mixed pool, so they need "
+                             f"flights.scene set and flights.scene_mix < 1; got scene="
+                             f"{cfg.flights.scene!r}, scene_mix={cfg.flights.scene_mix!r}")
         super().__init__(cfg, out_dir, depth_estimator, progress)
         self.teacher = load_teacher(cfg.teachers, self.frame_shape, self.flights.n_actions,
                                     mirror=cfg.teacher_mirror)
         self.teacher.reset(cfg.n_envs)
+        self.base_teacher = None                     # the second teacher of a mixed pool
+        if cfg.base_teachers:
+            self.base_teacher = load_teacher(cfg.base_teachers, self.frame_shape,
+                                             self.flights.n_actions, mirror=cfg.teacher_mirror)
+            self.base_teacher.reset(cfg.n_envs)
         self.teacher_started = np.ones(cfg.n_envs, bool)
         self._window["agree"] = []
 
@@ -175,8 +194,14 @@ class Distiller(Trainer):
         else:                                                  # the student's current frame
             seen = self.stacker.obs[:, -1]
         teacher_a = self.teacher.act({"frames": seen}, started=self.teacher_started)
+        teacher_q = self.teacher.last_q
+        if self.base_teacher is not None:                      # each world its own teacher
+            base_a = self.base_teacher.act({"frames": seen}, started=self.teacher_started)
+            base = ~self.flights.in_changed_world()
+            teacher_a = np.where(base, base_a, teacher_a)
+            teacher_q = np.where(base[:, None], self.base_teacher.last_q, teacher_q)
         self.teacher_started[:] = False
-        self.replay.label_latest(self.teacher.last_q)          # Q_T(o_t, .)
+        self.replay.label_latest(teacher_q)                    # Q_T(o_t, .)
         q, self.state = self.agent.q_values(self.stacker.obs, self.state)
         student_a = np.argmax(q, axis=1)
         self._window["agree"].append(float(np.mean(student_a == teacher_a)))
@@ -232,12 +257,17 @@ class Distiller(Trainer):
 
     def extra_state(self) -> dict[str, np.ndarray]:
         state = {f"teacher.{k}": v for k, v in self.teacher.state_dict().items()}
+        if self.base_teacher is not None:
+            state.update({f"base_teacher.{k}": v
+                          for k, v in self.base_teacher.state_dict().items()})
         state["teacher_started"] = self.teacher_started.copy()
         return state
 
     def load_extra_state(self, arrays: dict[str, np.ndarray]) -> None:
-        self.teacher.load_state_dict({k[len("teacher."):]: v for k, v in arrays.items()
-                                      if k.startswith("teacher.")})
+        for prefix, teacher in (("teacher.", self.teacher), ("base_teacher.", self.base_teacher)):
+            if teacher is not None:
+                teacher.load_state_dict({k[len(prefix):]: v for k, v in arrays.items()
+                                         if k.startswith(prefix)})
         self.teacher_started[...] = arrays["teacher_started"]
 
 

@@ -179,6 +179,7 @@ class Flights:
         # built with the overrides, the rest as the scenario is (the seeds are random, so
         # which worlds get which is too).
         n_changed = round(self.cfg.scene_mix * self.cfg.n_worlds)
+        self.n_changed = n_changed if self.cfg.scene else 0
         changed = self.cfg.scene or {}
         self.worlds = [make_scene(scenario, int(s), **(changed if i < n_changed else {}))
                        for i, s in enumerate(self.world_seeds)]
@@ -329,6 +330,12 @@ class Flights:
     # -- privileged information, for the oracle and the top view -------------------
     def scene_of(self, k: int):
         return self.worlds[self.world_of[k]]
+
+    def in_changed_world(self) -> np.ndarray:
+        """(n,) bool: which flights are in a world built with ``config.scene`` (all of
+        them when scene_mix is 1, none when there is no ``scene``); the rest fly the
+        scenario as it is. ``rl.distill`` reads it to give each kind its own teacher."""
+        return self.world_of < self.n_changed
 
     # The attributes the world's baseline pilots read (``world.policies``: env.poses,
     # env.scenes, env.actions, env.dt, env.safe_distance, env.steps), so that the world's

@@ -63,6 +63,8 @@ class TrainConfig:
     teacher_mirror: bool = False   # ours: each teacher net also flies the mirrored view
     teacher_depth: str = "gt"      # ours: what the teacher reads: gt (privileged) | pred (the
                                    # student's own frames: distilling nets that fly on them)
+    base_teachers: str = ""        # ours: in a mixed pool, a second teacher for the flights in
+                                   # the scenario's own worlds ('teachers' teach in the rest)
     distil_kl: float = 0.0         # ours: weight of a KL term on the teacher's action
                                    # preferences, softmax(Q_T / T), added to the Huber loss
     distil_temperature: float = 0.1  # T of that term, in the units of the Q-values
