@@ -350,9 +350,10 @@ def run_train_agent(args, command: str | None = None) -> int:
         from .distill import load_teacher
         cam = Camera()
         for flag, spec in (("--teachers", cfg.teachers), ("--base-teachers", cfg.base_teachers)):
+            if not spec:
+                continue
             try:
-                if spec:
-                    load_teacher(spec, (cam.height, cam.width), len(ACTIONS))
+                load_teacher(spec, (cam.height, cam.width), len(ACTIONS))
             except ValueError as e:
                 raise SystemExit(f"train-agent {flag}: {e}")
     if cfg.init_widen:                    # a net that cannot be widened: say so first

@@ -178,10 +178,9 @@ class Flights:
         # A mixed pool (scene_mix < 1): the first round(scene_mix * n_worlds) worlds are
         # built with the overrides, the rest as the scenario is (the seeds are random, so
         # which worlds get which is too).
-        n_changed = round(self.cfg.scene_mix * self.cfg.n_worlds)
-        self.n_changed = n_changed if self.cfg.scene else 0
+        self.n_changed = round(self.cfg.scene_mix * self.cfg.n_worlds) if self.cfg.scene else 0
         changed = self.cfg.scene or {}
-        self.worlds = [make_scene(scenario, int(s), **(changed if i < n_changed else {}))
+        self.worlds = [make_scene(scenario, int(s), **(changed if i < self.n_changed else {}))
                        for i, s in enumerate(self.world_seeds)]
         self.world_of = np.zeros(self.n, dtype=np.int64)
         self.poses = np.zeros((self.n, 3))
