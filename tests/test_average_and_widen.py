@@ -176,3 +176,12 @@ def test_training_from_a_widened_net(tmp_path):
     b.run()
     for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
         np.testing.assert_array_equal(p.data, q.data)
+
+
+def test_a_run_without_a_bar_prints_one_line_per_checkpoint(tmp_path, capsys):
+    """With no progress bar (--quiet; reproduce's parallel runs) a run still says how far
+    it is: its folder, steps of the total and the success so far, at each checkpoint."""
+    Trainer(small_config(), tmp_path / "quiet_run", progress=False).run()
+    lines = [l for l in capsys.readouterr().out.splitlines() if l.startswith("quiet_run: ")]
+    assert [l.split()[1] for l in lines] == ["48/96", "96/96"]
+    assert all("success" in l and l.endswith(" s") for l in lines)

@@ -226,9 +226,14 @@ def test_cli_smoke(tmp_path, capsys):
             commands.make_policy(bad)
 
 
-@pytest.mark.skipif(not SHIPPED.exists(), reason="no shipped Q-net yet")
-def test_shipped_model_loads_and_beats_random():
-    pol = QNetPolicy.load(SHIPPED)
+@pytest.mark.parametrize("name", sorted(commands.SHIPPED_QNETS))
+def test_shipped_model_loads_and_beats_random(name):
+    """Each shipped Q-net (fly --model NAME) loads with its command and seed recorded, a
+    JSON of its evaluations beside it, and flies far better than Random."""
+    path = commands.SHIPPED_QNETS[name]
+    assert path.is_file(), f"shipped Q-net {name!r} missing: {path}"
+    assert commands.recorded_result(path, "basic", "pred") is not None
+    pol = QNetPolicy.load(path)
     assert "command" in pol.meta and "seed" in pol.meta
     q = evaluate_policy(pol, "basic", n_flights=32, chunk=32, seed=7, progress=False)
     r = evaluate_policy(RandomPolicy(5, seed=7), "basic", n_flights=32, chunk=32, seed=7,
@@ -267,6 +272,15 @@ def test_fly_main_job_smoke(tmp_path, capsys):
     assert commands.run_fly(args) == 0
     args = p.parse_args(["--model", f"{SHIPPED}+{tmp_path / 'nope.npz'}"])
     with pytest.raises(SystemExit, match="nope.npz"):
+        commands.run_fly(args)
+    # the shipped nets by name: each flies; an unknown name lists the names
+    for name in commands.SHIPPED_QNETS:
+        args = p.parse_args(["--flights", "2", "--steps", "2", "--seed", "1", "--depth", "gt",
+                             "--gif", str(gif), "--model", name])
+        assert commands.run_fly(args) == 0
+    args = p.parse_args(["--model", "papr"])
+    with pytest.raises(SystemExit, match="'papr' not found.*expected a shipped name, "
+                       + " or ".join(commands.SHIPPED_QNETS)):
         commands.run_fly(args)
 
 

@@ -20,6 +20,8 @@ from .flights import ENCODINGS
 MODELS = Path(__file__).resolve().parent.parent / "models"
 RUNS = Path("runs")
 SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
+# The shipped Q-nets by name (fly --model NAME): the paper's training (the default).
+SHIPPED_QNETS = {"paper": SHIPPED_QNET}
 VARIANT_NAMES = {"ddqn": "DDQN", "d3qn": "D3QN", "ddrqn": "DDRQN", "d3rqn": "D3RQN"}
 
 
@@ -262,7 +264,9 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume", action="store_true")
     p.add_argument("--ship", default=None, help="also copy the model to minid3rqn/models/NAME.npz")
     p.add_argument("--smoke", action="store_true", help="a few hundred steps (tests)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress bar: one line per checkpoint instead (for log files "
+                        "and parallel runs)")
 
 
 def config_from_args(args):
@@ -544,8 +548,10 @@ def run_evaluate(args) -> int:
 
 # -- fly ----------------------------------------------------------------------------------
 def add_arguments_fly(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", default=str(SHIPPED_QNET),
-                   help="Q-net .npz (A.npz+B.npz+...: an ensemble on their mean Q-values)")
+    p.add_argument("--model", default="paper",
+                   help="a shipped Q-net by name (paper, the default: trained as the paper "
+                        "trains it) or a Q-net .npz (A.npz+B.npz+...: an ensemble on their "
+                        "mean Q-values)")
     p.add_argument("--depth-model", default=None,
                    help="DepthEstimator .npz (default: the shipped depth_<scenario>.npz)")
     p.add_argument("--depth", default="pred", choices=["gt", "pred"])
@@ -565,11 +571,13 @@ def run_fly(args) -> int:
     from .fly import fly
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 10**6)
     depth = args.depth
-    model = args.model
-    for part in model.split("+"):
+    parts = [str(SHIPPED_QNETS.get(part, part)) for part in args.model.split("+")]
+    for part in parts:
         if not Path(part).is_file():
-            raise SystemExit(f"fly: --model: Q-net {part!r} not found (expected a .npz file, "
-                             f"or several joined by '+')")
+            raise SystemExit(f"fly: --model: Q-net {part!r} not found (expected a shipped "
+                             f"name, {' or '.join(SHIPPED_QNETS)}, or a .npz file, or several "
+                             f"joined by '+')")
+    model = "+".join(parts)
     depth_model = args.depth_model or shipped_depth_model(args.scenario)
     if depth == "pred" and not Path(depth_model).exists():
         if args.depth_model is None and shipped_depth_model("basic").exists():
@@ -587,7 +595,7 @@ def run_fly(args) -> int:
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
           f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}) on {depth} depth; GIF: "
           f"{out['gif']}", file=sys.stderr)
-    recorded = recorded_result(args.model, args.scenario, depth)
+    recorded = recorded_result(model, args.scenario, depth)
     if recorded:
         print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
               f"result here: {recorded['rate']:.3f} [{recorded['ci95'][0]:.3f}, "

@@ -264,6 +264,9 @@ def _train_all(tasks: list, workers: int) -> list:
     the other: each is fixed by its own seed)."""
     if workers <= 1 or len(tasks) == 1 or "fork" not in mp.get_all_start_methods():
         return [_train_agent_cli(*t) for t in tasks]
+    print(f"\n== {len(tasks)} runs, {min(workers, len(tasks))} at a time (no progress bars: "
+          f"each prints a line per checkpoint): {', '.join(Path(t[1]).name for t in tasks)}",
+          flush=True)
     with mp.get_context("fork").Pool(min(workers, len(tasks))) as pool:
         return pool.map(_train_agent_task, tasks, chunksize=1)
 

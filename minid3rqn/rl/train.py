@@ -341,10 +341,18 @@ class Trainer:
             if self.steps >= next_ckpt:
                 self.save_checkpoint()
                 next_ckpt += cfg.checkpoint_every
+                if bar is None:           # no bar (--quiet, parallel runs): one line instead
+                    self._report_line(time.time() - t0)
         if bar is not None:
             bar.close()
         self.save_checkpoint()
         return self.curve[-1] if self.curve else {}
+
+    def _report_line(self, seconds: float) -> None:
+        last = self.curve[-1] if self.curve else {}
+        success = f", success {last['success']:.2f}" if "success" in last else ""
+        print(f"{self.out.name}: {self.steps}/{self.cfg.total_steps} steps{success}, "
+              f"{seconds:.0f} s", flush=True)
 
     # -- checkpoints ----------------------------------------------------------------
     def save_checkpoint(self, path=None) -> Path:
