@@ -20,8 +20,9 @@ from .flights import ENCODINGS
 MODELS = Path(__file__).resolve().parent.parent / "models"
 RUNS = Path("runs")
 SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
-# The shipped Q-nets by name (fly --model NAME): the paper's training (the default).
-SHIPPED_QNETS = {"paper": SHIPPED_QNET}
+# The shipped Q-nets by name (fly --model NAME): the paper's training (the default), and
+# our distilled student of `basic` (reproduce --recipe distil; docs/results.md).
+SHIPPED_QNETS = {"paper": SHIPPED_QNET, "distil": MODELS / "d3rqn_distil.npz"}
 VARIANT_NAMES = {"ddqn": "DDQN", "d3qn": "D3QN", "ddrqn": "DDRQN", "d3rqn": "D3RQN"}
 
 
@@ -549,9 +550,9 @@ def run_evaluate(args) -> int:
 # -- fly ----------------------------------------------------------------------------------
 def add_arguments_fly(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", default="paper",
-                   help="a shipped Q-net by name (paper, the default: trained as the paper "
-                        "trains it) or a Q-net .npz (A.npz+B.npz+...: an ensemble on their "
-                        "mean Q-values)")
+                   help="a shipped Q-net by name: paper (the default: trained as the paper "
+                        "trains it) or distil (our distilled student of basic); or a Q-net "
+                        ".npz (A.npz+B.npz+...: an ensemble on their mean Q-values)")
     p.add_argument("--depth-model", default=None,
                    help="DepthEstimator .npz (default: the shipped depth_<scenario>.npz)")
     p.add_argument("--depth", default="pred", choices=["gt", "pred"])
