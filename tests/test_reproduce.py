@@ -76,6 +76,22 @@ def test_reproduce_distilled_smoke(tmp_path):
             assert np.array_equal(arrays[k], first[name][k]), (name, k)
 
 
+def test_reproduce_distilled_short_smoke(tmp_path):
+    """The short chain: only the two wide parents, at SHORT's budget (120k transitions,
+    epsilon over 50k), their pair the teacher; the stages as in the full recipe."""
+    res = reproduce_distilled(out=tmp_path, students=1, tables="5", skip_depth=True,
+                              budget={"smoke": True, "flights": 4}, short=True)
+    agents = tmp_path / "distil"
+    assert sorted(p.name for p in agents.iterdir() if p.is_dir()) == [
+        "parent_wide_s0", "parent_wide_s1", "stage1_gt", "stage2_student_s0"]
+    parent = load_npz(agents / "parent_wide_s1" / "model.npz")[1]["command"]
+    for flag in ["--steps 120000", "--eps-decay 50000", "--conv-channels 8,16,16", "--seed 1"]:
+        assert flag in parent, (flag, parent)
+    assert res["recipe"] == "distil-short" and res["budget"]["steps"] == 120_000
+    assert res["teacher"]["spec"].count("+") == 1 and "parent_wide_s1" in res["teacher"]["spec"]
+    assert "the two wide parents" in (agents / "results.md").read_text()
+
+
 def test_reproduce_students_error():
     with pytest.raises(ValueError, match="students must be >= 1; got 0"):
         reproduce_distilled(out=Path("unused"), students=0)
@@ -85,6 +101,7 @@ def test_reproduce_students_error():
     (["--workers", "0"], "--workers: expected a number of processes >= 1; got 0"),
     (["--students", "0"], "--students: expected a number of students >= 1; got 0"),
     (["--students", "2"], "--students 2: only for --recipe distil"),
+    (["--recipe", "distil-short", "--depth", "gt"], "--recipe distil-short: its stages"),
     (["--recipe", "distil", "--depth", "gt"], "--recipe distil: its stages are fixed"),
 ])
 def test_reproduce_cli_errors(argv, message, tmp_path):

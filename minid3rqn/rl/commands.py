@@ -632,10 +632,11 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
                    help="processes for the evaluations (evaluate --workers); --recipe distil: "
                         "also trains its parents and students that many at a time (one per "
                         "core; run with OMP_NUM_THREADS=1)")
-    p.add_argument("--recipe", choices=["paper", "distil"], default="paper",
+    p.add_argument("--recipe", choices=["paper", "distil", "distil-short"], default="paper",
                    help="paper: Tables 5 and 6 as above; distil (ours): the distilled D3RQN "
                         "that flies basic at 0.95 on predicted depth (four GT parents, two "
-                        "distillation stages; docs/results.md)")
+                        "distillation stages; docs/results.md); distil-short (ours): the same "
+                        "with only the two wide parents, 120k transitions each")
     p.add_argument("--students", type=int, default=1,
                    help="--recipe distil: students of the second stage (seeds --seed, "
                         "--seed + 1, ...)")
@@ -649,17 +650,19 @@ def run_reproduce(args) -> int:
     if args.students < 1:
         raise SystemExit(f"reproduce --students: expected a number of students >= 1; got "
                          f"{args.students}")
-    if args.recipe == "distil":
+    if args.recipe in ("distil", "distil-short"):
         if args.depth != "pred" or args.train_depth != "gt":
-            raise SystemExit(f"reproduce --recipe distil: its stages are fixed (GT depth, then "
+            raise SystemExit(f"reproduce --recipe {args.recipe}: its stages are fixed (GT depth, then "
                              f"predicted depth) and its students fly on predicted depth; got "
                              f"--depth {args.depth} --train-depth {args.train_depth}")
         reproduce_distilled(out=Path(args.out), quick=args.quick, seed=args.seed,
                             students=args.students, skip_depth=args.skip_depth,
-                            tables=args.table, workers=args.workers)
+                            tables=args.table, workers=args.workers,
+                            short=args.recipe == "distil-short")
         return 0
     if args.students != 1:
-        raise SystemExit(f"reproduce --students {args.students}: only for --recipe distil")
+        raise SystemExit(f"reproduce --students {args.students}: only for --recipe distil "
+                         f"and distil-short")
     reproduce(out=Path(args.out), quick=args.quick, seed=args.seed, depth=args.depth,
               skip_depth=args.skip_depth, tables=args.table, train_depth=args.train_depth,
               workers=args.workers)
