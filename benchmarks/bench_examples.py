@@ -1,5 +1,6 @@
 """How long the learning path's commands take: each example, and the classroom exercise
-runs, timed one after the other on this machine (wall clock), as a student runs them.
+runs (their paper settings, `--baseline`: the templates are unfilled until a student
+edits them), timed one after the other on this machine (wall clock), as a student runs them.
 
     python benchmarks/bench_examples.py                      # all of them (about 40 min)
     python benchmarks/bench_examples.py --only 01 05 reward  # some
@@ -37,8 +38,9 @@ def commands(tmp: Path) -> dict[str, list[str]]:
         "07": [py, "examples/07_which_depth_errors_matter.py"],
         "08": [py, "examples/08_where_flights_crash.py"],
         "fly": [py, "-m", "minid3rqn", "fly", "--gif", str(tmp / "fly.gif"), "--seed", "0"],
-        "reward": [py, "-m", "minid3rqn", "exercise", "reward", "--out", str(tmp / "reward")],
-        "depth-loss": [py, "-m", "minid3rqn", "exercise", "depth-loss",
+        "reward": [py, "-m", "minid3rqn", "exercise", "reward", "--baseline",
+                   "--out", str(tmp / "reward")],
+        "depth-loss": [py, "-m", "minid3rqn", "exercise", "depth-loss", "--baseline",
                        "--out", str(tmp / "depth-loss")],
     }
 
