@@ -316,7 +316,7 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     results = {"recipe": recipe, "budget": budget, "seed": seed, "students": [],
                "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     kinds = SHORT_PARENTS if short else PARENTS
-    parents = _train_all([                       # the shipped D3RQN's 240k recipe, GT depth
+    parents = _train_all([     # the shipped D3RQN's 240k recipe (short: SHORT's), GT depth
         (["--variant", "d3rqn", "--seed", str(seed + offset), "--steps", str(budget["steps"]),
           "--learning-starts", str(budget["learning_starts"]),
           "--eps-decay", str(budget["eps_decay"]), "--replay", "100000",
