@@ -638,8 +638,8 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
                         "distillation stages; docs/results.md); distil-short (ours): the same "
                         "with only the two wide parents, 120k transitions each")
     p.add_argument("--students", type=int, default=1,
-                   help="--recipe distil: students of the second stage (seeds --seed, "
-                        "--seed + 1, ...)")
+                   help="--recipe distil or distil-short: students of the second stage "
+                        "(seeds --seed, --seed + 1, ...)")
 
 
 def run_reproduce(args) -> int:
@@ -652,8 +652,8 @@ def run_reproduce(args) -> int:
                          f"{args.students}")
     if args.recipe in ("distil", "distil-short"):
         if args.depth != "pred" or args.train_depth != "gt":
-            raise SystemExit(f"reproduce --recipe {args.recipe}: its stages are fixed (GT depth, then "
-                             f"predicted depth) and its students fly on predicted depth; got "
+            raise SystemExit(f"reproduce --recipe {args.recipe}: its stages are fixed (GT depth, "
+                             f"then predicted depth) and its students fly on predicted depth; got "
                              f"--depth {args.depth} --train-depth {args.train_depth}")
         reproduce_distilled(out=Path(args.out), quick=args.quick, seed=args.seed,
                             students=args.students, skip_depth=args.skip_depth,

@@ -353,7 +353,8 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
 
 def distilled_table(results: dict) -> str:
     """The students' rates per world (predicted depth), against the issue's targets."""
-    parents = "the two wide parents" if results.get("recipe") == "distil-short" else "the four parents"
+    short = results.get("recipe") == "distil-short"
+    parents = "the two wide parents" if short else "the four parents"
     lines = [f"The distilled D3RQN (ours, {results.get('recipe', 'distil')}), predicted depth; "
              f"the teacher on GT depth in basic",
              "", "| model | scenario | ours | 95% CI | target |", "|---|---|---|---|---|"]
