@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from minid3rqn.io import load_npz
-from minid3rqn.rl.reproduce import FAMILY, TRANSFER, reproduce, reproduce_distilled
+from minid3rqn.rl.reproduce import (FAMILY, TRANSFER, distil_budget, reproduce,
+                                    reproduce_distilled)
 
 
 def test_reproduce_pipeline_smoke(tmp_path):
@@ -92,6 +93,20 @@ def test_reproduce_distilled_short_smoke(tmp_path):
     assert "the two wide parents" in (agents / "results.md").read_text()
 
 
+def test_distil_budget_parent_steps():
+    """The presets' parents (240k and 120k, epsilon over 5/12 of them) and any other length
+    with the same share; the stages keep their budgets."""
+    assert (distil_budget()["steps"], distil_budget()["eps_decay"]) == (240_000, 100_000)
+    short = distil_budget(short=True)
+    assert (short["steps"], short["eps_decay"]) == (120_000, 50_000)
+    for kw in ({}, {"short": True}):
+        b = distil_budget(parent_steps=150_000, **kw)
+        assert (b["steps"], b["eps_decay"]) == (150_000, 62_500)
+        assert b["stage1_steps"] == distil_budget()["stage1_steps"]
+    with pytest.raises(ValueError, match="parent_steps must exceed .* \\(5000\\); got 4000"):
+        distil_budget(parent_steps=4000)
+
+
 def test_reproduce_students_error():
     with pytest.raises(ValueError, match="students must be >= 1; got 0"):
         reproduce_distilled(out=Path("unused"), students=0)
@@ -103,6 +118,10 @@ def test_reproduce_students_error():
     (["--students", "2"], "--students 2: only for --recipe distil"),
     (["--recipe", "distil-short", "--depth", "gt"], "--recipe distil-short: its stages"),
     (["--recipe", "distil", "--depth", "gt"], "--recipe distil: its stages are fixed"),
+    (["--parent-steps", "150000"], "--parent-steps 150000: only for --recipe distil"),
+    (["--recipe", "distil-short", "--parent-steps", "5000"],
+     "--parent-steps: expected more transitions than the parents' learning start \\(5000\\); "
+     "got 5000"),
 ])
 def test_reproduce_cli_errors(argv, message, tmp_path):
     """Settings the recipes cannot honour stop before any training, naming the flag."""

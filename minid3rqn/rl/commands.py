@@ -640,6 +640,10 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
     p.add_argument("--students", type=int, default=1,
                    help="--recipe distil or distil-short: students of the second stage "
                         "(seeds --seed, --seed + 1, ...)")
+    p.add_argument("--parent-steps", type=int, default=None,
+                   help="--recipe distil or distil-short: transitions of each GT parent "
+                        "(default 240000 and 120000), epsilon falling over the first 5/12 "
+                        "of them as in both presets")
 
 
 def run_reproduce(args) -> int:
@@ -650,6 +654,15 @@ def run_reproduce(args) -> int:
     if args.students < 1:
         raise SystemExit(f"reproduce --students: expected a number of students >= 1; got "
                          f"{args.students}")
+    if args.parent_steps is not None:
+        from .reproduce import FULL, QUICK
+        starts = (QUICK if args.quick else FULL)["learning_starts"]
+        if args.recipe == "paper":
+            raise SystemExit(f"reproduce --parent-steps {args.parent_steps}: only for --recipe "
+                             f"distil and distil-short")
+        if args.parent_steps <= starts:
+            raise SystemExit(f"reproduce --parent-steps: expected more transitions than the "
+                             f"parents' learning start ({starts}); got {args.parent_steps}")
     if args.recipe in ("distil", "distil-short"):
         if args.depth != "pred" or args.train_depth != "gt":
             raise SystemExit(f"reproduce --recipe {args.recipe}: its stages are fixed (GT depth, "
@@ -658,7 +671,8 @@ def run_reproduce(args) -> int:
         reproduce_distilled(out=Path(args.out), quick=args.quick, seed=args.seed,
                             students=args.students, skip_depth=args.skip_depth,
                             tables=args.table, workers=args.workers,
-                            short=args.recipe == "distil-short")
+                            short=args.recipe == "distil-short",
+                            parent_steps=args.parent_steps)
         return 0
     if args.students != 1:
         raise SystemExit(f"reproduce --students {args.students}: only for --recipe distil "

@@ -243,6 +243,9 @@ STAGE2 = ["--mirror-augment", "--distil-kl", "1", "--distil-temperature", "0.1"]
 # falling over the first 50k of their 120k transitions; the two stages as above.
 SHORT_PARENTS = PARENTS[2:]
 SHORT = dict(steps=120_000, eps_decay=50_000)
+# Both presets let epsilon fall over the first 5/12 of a parent's transitions (100k of 240k,
+# 50k of 120k); ``--parent-steps`` keeps that share for any other length.
+EPS_SHARE = 5 / 12
 
 
 def _train_agent_cli(argv: list, run_dir: Path, budget: dict, quiet: bool = False) -> Path:
@@ -292,12 +295,30 @@ def _evaluate_cli(spec: str, scenario: str, budget: dict, seed: int, depth: str,
     return {**record, "command": "python -m minid3rqn evaluate " + " ".join(argv)}
 
 
+def distil_budget(quick: bool = False, short: bool = False, parent_steps: int | None = None,
+                  budget: dict | None = None) -> dict:
+    """The distilled recipes' budget: ``FULL`` (``QUICK``), with ``SHORT``'s parents for the
+    short chain, then ``budget``'s entries (tests); ``parent_steps`` sets the parents'
+    length and lets epsilon fall over ``EPS_SHARE`` of it."""
+    if short and not quick:
+        budget = {**SHORT, **(budget or {})}
+    budget = {**(QUICK if quick else FULL), **(budget or {})}
+    if parent_steps is not None:
+        if parent_steps <= budget["learning_starts"]:
+            raise ValueError(f"reproduce_distilled: parent_steps must exceed the parents' "
+                             f"learning start ({budget['learning_starts']}); got {parent_steps}")
+        budget = {**budget, "steps": parent_steps, "eps_decay": round(parent_steps * EPS_SHARE)}
+    return budget
+
+
 def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students: int = 1,
                         skip_depth: bool = False, tables: str = "both", workers: int = 1,
-                        budget: dict | None = None, short: bool = False) -> dict:
+                        budget: dict | None = None, short: bool = False,
+                        parent_steps: int | None = None) -> dict:
     """The distilled D3RQN end to end: the basic DispNet (and, for Table 6, the transfer
     ones) as in ``reproduce``, the four GT parents (``short``: the two wide ones at
-    ``SHORT``'s budget), stage 1, then ``students`` students
+    ``SHORT``'s budget; ``parent_steps``: that many transitions each, epsilon over
+    ``EPS_SHARE`` of them), stage 1, then ``students`` students
     of stage 2 (seeds ``seed``, ``seed`` + 1, ...), each flown on predicted depth in
     ``basic`` (and the transfer worlds), and the teacher on GT depth in ``basic``.
     ``workers`` > 1 trains the parents (and the students) that many at a time, one
@@ -305,9 +326,7 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     ``out/distil`` (results.json, results.md)."""
     if students < 1:
         raise ValueError(f"reproduce_distilled: students must be >= 1; got {students}")
-    if short and not quick:
-        budget = {**SHORT, **(budget or {})}
-    budget = {**(QUICK if quick else FULL), **(budget or {})}
+    budget = distil_budget(quick, short, parent_steps, budget)
     out = out / "quick" if quick else out
     scenarios = ["basic"] + (list(TRANSFER) if tables in ("6", "both") else [])
     depth_models = _depth_models(out, seed, budget, scenarios, skip_depth)
@@ -355,6 +374,9 @@ def distilled_table(results: dict) -> str:
     """The students' rates per world (predicted depth), against the issue's targets."""
     short = results.get("recipe") == "distil-short"
     parents = "the two wide parents" if short else "the four parents"
+    steps = results.get("budget", {}).get("steps")
+    if steps:
+        parents += f", {steps:,} transitions each"
     lines = [f"The distilled D3RQN (ours, {results.get('recipe', 'distil')}), predicted depth; "
              f"the teacher on GT depth in basic",
              "", "| model | scenario | ours | 95% CI | target |", "|---|---|---|---|---|"]
@@ -368,4 +390,4 @@ def distilled_table(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["reproduce", "reproduce_distilled", "markdown_tables", "PAPER_T5", "PAPER_T6"]
+__all__ = ["reproduce", "reproduce_distilled", "distil_budget", "markdown_tables", "PAPER_T5", "PAPER_T6"]
