@@ -4,6 +4,7 @@ edits them), timed one after the other on this machine (wall clock), as a studen
 
     python benchmarks/bench_examples.py                      # all of them (about 30 min)
     python benchmarks/bench_examples.py --only 01 05 reward  # some
+    python benchmarks/bench_examples.py --only 04            # example 04's full run, alone
 
 Run it from the repository's root on an otherwise idle machine. Outputs go to a
 temporary folder (nothing in the repository changes); one JSON line per command is
@@ -25,6 +26,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 # the classroom exercises with a run (exercise 6, the autograd op, is its check)
 EXERCISES = ("reward", "actions", "fov", "memory", "ablation", "depth-loss", "depth-errors")
+# timed only when named in --only: example 04's full training (tens of minutes)
+LONG = ("04",)
 
 
 def commands(tmp: Path) -> dict[str, list[str]]:
@@ -35,6 +38,7 @@ def commands(tmp: Path) -> dict[str, list[str]]:
         "02": [py, "examples/02_world_and_camera.py", "--out", str(tmp / "02")],
         "03": [py, "examples/03_train_depth.py", "--out", str(tmp / "03")],
         "04-smoke": [py, "examples/04_train_d3rqn.py", "--smoke", "--out", str(tmp / "04")],
+        "04": [py, "examples/04_train_d3rqn.py", "--out", str(tmp / "04-full")],
         "05": [py, "examples/05_evaluate.py"],
         "06": [py, "examples/06_wall_ahead.py", "--out", str(tmp / "06")],
         "07": [py, "examples/07_which_depth_errors_matter.py"],
@@ -58,7 +62,7 @@ def main() -> int:
                              f"{sorted(table)}")
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         for name, argv in table.items():
-            if args.only and name not in args.only:
+            if (name not in args.only) if args.only else name in LONG:
                 continue
             t0 = time.perf_counter()
             done = subprocess.run(argv, cwd=ROOT, stdout=subprocess.DEVNULL,
