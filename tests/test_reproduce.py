@@ -79,9 +79,12 @@ def test_reproduce_distilled_smoke(tmp_path):
 
 def test_reproduce_distilled_short_smoke(tmp_path):
     """The short chain: only the two wide parents, at SHORT's budget (120k transitions,
-    epsilon over 50k), their pair the teacher; the stages as in the full recipe."""
+    epsilon over 50k), their pair the teacher; the stages as in the full recipe. With
+    ``start="best"`` stage 1 grows the wide parent that flies the validation worlds
+    better (a tie keeps seed 0)."""
     res = reproduce_distilled(out=tmp_path, students=1, tables="5", skip_depth=True,
-                              budget={"smoke": True, "flights": 4}, short=True)
+                              budget={"smoke": True, "flights": 4, "val_flights": 4},
+                              short=True, start="best")
     agents = tmp_path / "distil"
     assert sorted(p.name for p in agents.iterdir() if p.is_dir()) == [
         "parent_wide_s0", "parent_wide_s1", "stage1_gt", "stage2_student_s0"]
@@ -91,6 +94,13 @@ def test_reproduce_distilled_short_smoke(tmp_path):
     assert res["recipe"] == "distil-short" and res["budget"]["steps"] == 120_000
     assert res["teacher"]["spec"].count("+") == 1 and "parent_wide_s1" in res["teacher"]["spec"]
     assert "the two wide parents" in (agents / "results.md").read_text()
+    val = res["validation"]
+    assert [v["world_set"] for v in val] == ["validation"] * 2
+    assert all("--validation" in v["command"] and v["flights"] == 4 for v in val)
+    best = max(range(2), key=lambda i: (val[i]["rate"], -i))
+    assert res["start"] == val[best]["spec"]
+    stage1 = load_npz(agents / "stage1_gt" / "model.npz")[1]["command"]
+    assert f"--init-model {res['start']}" in stage1, stage1
 
 
 def test_distil_budget_parent_steps():
@@ -110,6 +120,8 @@ def test_distil_budget_parent_steps():
 def test_reproduce_students_error():
     with pytest.raises(ValueError, match="students must be >= 1; got 0"):
         reproduce_distilled(out=Path("unused"), students=0)
+    with pytest.raises(ValueError, match="start must be 'first' or 'best'; got 'last'"):
+        reproduce_distilled(out=Path("unused"), start="last")
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -119,6 +131,7 @@ def test_reproduce_students_error():
     (["--recipe", "distil-short", "--depth", "gt"], "--recipe distil-short: its stages"),
     (["--recipe", "distil", "--depth", "gt"], "--recipe distil: its stages are fixed"),
     (["--parent-steps", "150000"], "--parent-steps 150000: only for --recipe distil"),
+    (["--start", "best"], "--start best: only for --recipe distil"),
     (["--recipe", "distil-short", "--parent-steps", "5000"],
      "--parent-steps: expected more transitions than the parents' learning start \\(5000\\); "
      "got 5000"),

@@ -491,6 +491,9 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", action="append", default=[], metavar="KEY=VALUE",
                    help=SCENE_HELP)
     add_argument_horizon_row(p, HORIZON_DEFAULT)
+    p.add_argument("--validation", action="store_true",
+                   help="fly the validation worlds instead of the test worlds (a disjoint "
+                        "seed range, for choosing between models without the test worlds)")
     p.add_argument("--json", default=None, help="append results to this JSON-lines file")
     p.add_argument("--quiet", action="store_true")
 
@@ -526,7 +529,8 @@ def evaluate_one(spec: str, args, est, scene) -> tuple:
                         scene=scene)
     res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
                           args.chunk, args.depth, est, progress=not args.quiet,
-                          workers=args.workers, flights_config=cfg)
+                          workers=args.workers, flights_config=cfg,
+                          world_set="validation" if args.validation else "test")
     print(res.line() + _what_flew(spec, args.depth, est, args.mirror), flush=True)
     record = {**res.to_dict(), "spec": spec,
               "depth_flip": bool(est is not None and est.flip),
@@ -644,6 +648,10 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
                    help="--recipe distil or distil-short: transitions of each GT parent "
                         "(default 240000 and 120000), epsilon falling over the first 5/12 "
                         "of them as in both presets")
+    p.add_argument("--start", choices=["first", "best"], default="first",
+                   help="--recipe distil or distil-short: the wide parent stage 1 grows: "
+                        "first (seed --seed, as run until now) or best (the higher success "
+                        "on GT depth over 500 flights in the validation worlds)")
 
 
 def run_reproduce(args) -> int:
@@ -654,6 +662,9 @@ def run_reproduce(args) -> int:
     if args.students < 1:
         raise SystemExit(f"reproduce --students: expected a number of students >= 1; got "
                          f"{args.students}")
+    if args.start != "first" and args.recipe == "paper":
+        raise SystemExit(f"reproduce --start {args.start}: only for --recipe distil and "
+                         f"distil-short")
     if args.parent_steps is not None:
         from .reproduce import FULL, QUICK
         starts = (QUICK if args.quick else FULL)["learning_starts"]
@@ -672,7 +683,7 @@ def run_reproduce(args) -> int:
                             students=args.students, skip_depth=args.skip_depth,
                             tables=args.table, workers=args.workers,
                             short=args.recipe == "distil-short",
-                            parent_steps=args.parent_steps)
+                            parent_steps=args.parent_steps, start=args.start)
         return 0
     if args.students != 1:
         raise SystemExit(f"reproduce --students {args.students}: only for --recipe distil "

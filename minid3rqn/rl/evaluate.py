@@ -55,11 +55,13 @@ class EvalResult:
     mean_steps: float
     seconds: float
     seed: int
+    world_set: str = "test"      # "validation": the model-selection range (Flights)
 
     def line(self) -> str:
+        where = "" if self.world_set == "test" else ", validation worlds"
         return (f"{self.policy:<10} {self.scenario:<13} {self.rate:.3f} "
                 f"[{self.ci_low:.3f}, {self.ci_high:.3f}]  ({self.successes}/{self.flights}, "
-                f"mean steps {self.mean_steps:.1f}, {self.seconds:.0f} s)")
+                f"mean steps {self.mean_steps:.1f}, {self.seconds:.0f} s{where})")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -129,7 +131,7 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
                     depth: str = "gt", depth_estimator=None,
                     flights_config: FlightsConfig | None = None,
                     progress: bool = True, workers: int = 1,
-                    flights_factory=None) -> EvalResult:
+                    flights_factory=None, world_set: str = "test") -> EvalResult:
     """Success rate of ``policy`` over ``n_flights`` fresh flights (greedy, batched).
 
     The flights are flown ``chunk`` at a time, each chunk from its own seed
@@ -138,6 +140,9 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     the result is the same as with one. ``flights_factory`` (default ``Flights``) makes
     each chunk's flights from ``Flights``'s arguments: a subclass that changes what the
     policy sees (``examples/07_which_depth_errors_matter.py``) is flown the same way.
+    ``world_set``: "test" (the evaluation seed range, every reported rate) or "validation"
+    (a third, disjoint range, for choosing between models without touching the test
+    worlds).
     """
     if n_flights < 1:
         raise ValueError(f"evaluate_policy: n_flights must be >= 1; got {n_flights}")
@@ -145,8 +150,13 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
         raise ValueError(f"evaluate_policy: chunk must be >= 1; got {chunk}")
     if workers < 1:
         raise ValueError(f"evaluate_policy: workers must be >= 1; got {workers}")
+    if world_set not in ("test", "validation"):
+        raise ValueError(f"evaluate_policy: world_set must be 'test' or 'validation'; got "
+                         f"{world_set!r}")
     cfg = flights_config or FlightsConfig()
-    cfg = FlightsConfig(**{**asdict(cfg), "max_steps": max_steps, "test_worlds": True,
+    cfg = FlightsConfig(**{**asdict(cfg), "max_steps": max_steps,
+                           "test_worlds": world_set == "test",
+                           "validation_worlds": world_set == "validation",
                            "n_worlds": min(cfg.n_worlds, chunk, n_flights)})
     tasks = _chunk_seeds(seed, n_flights, chunk)
     workers = min(workers, len(tasks))
@@ -181,7 +191,7 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     k = int((survived >= max_steps).sum())
     lo, hi = wilson_interval(k, n_flights)
     return EvalResult(policy.name, scenario, depth, n_flights, k, k / n_flights, lo, hi,
-                      float(survived.mean()), time.time() - t0, seed)
+                      float(survived.mean()), time.time() - t0, seed, world_set)
 
 
 __all__ = ["wilson_interval", "EvalResult", "run_flights", "evaluate_policy"]

@@ -45,6 +45,7 @@ from ..world.renderer import render_depth_batch
 
 TRAIN_SEEDS = 0                 # training worlds: seeds in [0, 1e6)
 TEST_SEEDS = 1_000_000          # evaluation worlds: seeds in [1e6, 2e6)
+VALIDATION_SEEDS = 2_000_000    # validation worlds (choosing between models): [2e6, 3e6)
 
 
 @dataclass
@@ -54,6 +55,8 @@ class FlightsConfig:
     max_depth: float = 10.0      # ours: depth clip (m) for the Q-net input
     depth_scale: float = 1.0     # extra factor on predicted depth (1: trust the estimator)
     test_worlds: bool = False    # draw worlds from the evaluation seed range
+    validation_worlds: bool = False  # draw them from the validation range (model selection:
+                                     # a choice made there never sees a test world)
     horizon_row: float | None = None  # ours: the camera's horizon row (None: the middle row;
                                       # Camera.horizon_row, docs/depth.md section 7)
     encoding: str = "depth"      # ours: what a frame's value is: "depth" or "inverse"
@@ -173,7 +176,11 @@ class Flights:
         self.frame_shape = (self.camera.height, self.camera.width)
         self.n_sub = n_substeps(self.actions, ACTION_INTERVAL)
         self.rng = np.random.default_rng(seed)
-        base = TEST_SEEDS if self.cfg.test_worlds else TRAIN_SEEDS
+        if self.cfg.test_worlds and self.cfg.validation_worlds:
+            raise ValueError("Flights: config.test_worlds and config.validation_worlds are "
+                             "both set; the two seed ranges are disjoint, pick one")
+        base = (TEST_SEEDS if self.cfg.test_worlds else
+                VALIDATION_SEEDS if self.cfg.validation_worlds else TRAIN_SEEDS)
         self.world_seeds = base + self.rng.choice(1_000_000, size=self.cfg.n_worlds, replace=False)
         # A mixed pool (scene_mix < 1): the first round(scene_mix * n_worlds) worlds are
         # built with the overrides, the rest as the scenario is (the seeds are random, so

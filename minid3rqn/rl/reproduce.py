@@ -50,10 +50,12 @@ FAMILY = ("d3rqn", "ddrqn", "d3qn", "ddqn", "d3qn:5", "ddqn:5")
 # depth, ``stage2_steps`` on predicted depth, each learning from ``stage_learning_starts``.
 FULL = dict(steps=240_000, updates_per_step=2.0, eps_decay=100_000, learning_starts=5000,
             finetune_steps=20_000, flights=2000, depth_frames=5000, depth_iterations=None,
-            stage1_steps=20_000, stage2_steps=40_000, stage_learning_starts=2000)
+            stage1_steps=20_000, stage2_steps=40_000, stage_learning_starts=2000,
+            val_flights=500)
 QUICK = dict(steps=3_000, updates_per_step=4.0, eps_decay=2_500, learning_starts=500,
              finetune_steps=1_000, flights=200, depth_frames=600, depth_iterations=300,
-             stage1_steps=1_000, stage2_steps=2_000, stage_learning_starts=200)
+             stage1_steps=1_000, stage2_steps=2_000, stage_learning_starts=200,
+             val_flights=100)
 
 
 # The shipped depth recipe (docs/depth.md, sections 5 and 7): basic from scratch with the
@@ -280,13 +282,17 @@ def _train_all(tasks: list, workers: int) -> list:
 
 
 def _evaluate_cli(spec: str, scenario: str, budget: dict, seed: int, depth: str,
-                  depth_model, workers: int) -> dict:
-    """``python -m minid3rqn evaluate SPEC`` as on the command line; returns its record."""
+                  depth_model, workers: int, validation: bool = False) -> dict:
+    """``python -m minid3rqn evaluate SPEC`` as on the command line; returns its record.
+    ``validation``: ``budget["val_flights"]`` flights in the validation worlds."""
     from .commands import _estimator_for, add_arguments_evaluate, evaluate_one
     p = argparse.ArgumentParser()
     add_arguments_evaluate(p)
-    argv = [spec, "--scenario", scenario, "--flights", str(budget["flights"]),
+    flights = budget["val_flights"] if validation else budget["flights"]
+    argv = [spec, "--scenario", scenario, "--flights", str(flights),
             "--seed", str(12345 + seed), "--depth", depth, "--workers", str(workers)]
+    if validation:
+        argv += ["--validation"]
     if depth == "pred":
         argv += ["--depth-model", str(depth_model)]
     args = p.parse_args(argv)
@@ -314,18 +320,23 @@ def distil_budget(quick: bool = False, short: bool = False, parent_steps: int | 
 def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students: int = 1,
                         skip_depth: bool = False, tables: str = "both", workers: int = 1,
                         budget: dict | None = None, short: bool = False,
-                        parent_steps: int | None = None) -> dict:
+                        parent_steps: int | None = None, start: str = "first") -> dict:
     """The distilled D3RQN end to end: the basic DispNet (and, for Table 6, the transfer
     ones) as in ``reproduce``, the four GT parents (``short``: the two wide ones at
     ``SHORT``'s budget; ``parent_steps``: that many transitions each, epsilon over
-    ``EPS_SHARE`` of them), stage 1, then ``students`` students
-    of stage 2 (seeds ``seed``, ``seed`` + 1, ...), each flown on predicted depth in
-    ``basic`` (and the transfer worlds), and the teacher on GT depth in ``basic``.
-    ``workers`` > 1 trains the parents (and the students) that many at a time, one
-    process per core, and flies the evaluations' chunks likewise. Everything lands in
-    ``out/distil`` (results.json, results.md)."""
+    ``EPS_SHARE`` of them), stage 1, then ``students`` students of stage 2 (seeds
+    ``seed``, ``seed`` + 1, ...), each flown on predicted depth in ``basic`` (and the
+    transfer worlds), and the teacher on GT depth in ``basic``. Stage 1 grows a wide
+    parent: ``start="first"`` the seed-``seed`` one (every run in docs/results.md until
+    the twenty-seventh session), ``"best"`` the one with the higher success on GT depth
+    over ``budget["val_flights"]`` flights in the validation worlds (never the test
+    worlds; a tie keeps the first). ``workers`` > 1 trains the parents (and the students)
+    that many at a time, one process per core, and flies the evaluations' chunks
+    likewise. Everything lands in ``out/distil`` (results.json, results.md)."""
     if students < 1:
         raise ValueError(f"reproduce_distilled: students must be >= 1; got {students}")
+    if start not in ("first", "best"):
+        raise ValueError(f"reproduce_distilled: start must be 'first' or 'best'; got {start!r}")
     budget = distil_budget(quick, short, parent_steps, budget)
     out = out / "quick" if quick else out
     scenarios = ["basic"] + (list(TRANSFER) if tables in ("6", "both") else [])
@@ -342,7 +353,15 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
           "--updates-per-step", str(budget["updates_per_step"]), *torso],
          agents / name, budget) for name, offset, torso in kinds], workers)
     teacher = "+".join(str(m) for m in parents)
-    start_from = dict(zip((name for name, _, _ in kinds), parents))["parent_wide_s0"]
+    wide = {name: m for (name, _, torso), m in zip(kinds, parents) if torso == WIDE}
+    start_from = wide["parent_wide_s0"]
+    if start == "best":        # the better wide parent on validation worlds, GT depth
+        results["validation"] = [_evaluate_cli(str(m), "basic", budget, seed, "gt", None,
+                                               workers, validation=True)
+                                 for m in wide.values()]
+        rates = [r["rate"] for r in results["validation"]]
+        start_from = list(wide.values())[rates.index(max(rates))]
+    results["start"] = str(start_from)
     starts = str(budget["stage_learning_starts"])
     stage1 = _train_agent_cli(
         ["--variant", "d3rqn", "--seed", str(seed), "--steps", str(budget["stage1_steps"]),
@@ -387,6 +406,11 @@ def distilled_table(results: dict) -> str:
     t = results["teacher"]
     lines.append(f"| teacher ({parents}), GT depth | basic | {t['rate']:.3f} | "
                  f"[{t['ci_low']:.3f}, {t['ci_high']:.3f}] | |")
+    for v in results.get("validation", []):
+        lines.append(f"| {v['spec']}, GT depth, **validation worlds** | basic | {v['rate']:.3f} "
+                     f"| [{v['ci_low']:.3f}, {v['ci_high']:.3f}] | |")
+    if "start" in results:
+        lines.append(f"\nStage 1 grew {results['start']}.")
     return "\n".join(lines) + "\n"
 
 
