@@ -18,7 +18,8 @@ depth (docs/results.md):
     python examples/04_train_d3rqn.py [--smoke] [--out DIR]
 
 ``--smoke`` runs a few hundred steps with a tiny network (seconds); the learning curve
-(CSV + PNG) and the model land in DIR.
+(CSV + PNG) and the model land in DIR. Without it, this script (budget B) took 14 min
+(832 s) alone on an idle 2-core machine (`python benchmarks/bench_examples.py --only 04`).
 """
 import argparse
 from pathlib import Path
