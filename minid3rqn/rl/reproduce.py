@@ -414,4 +414,5 @@ def distilled_table(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["reproduce", "reproduce_distilled", "distil_budget", "markdown_tables", "PAPER_T5", "PAPER_T6"]
+__all__ = ["reproduce", "reproduce_distilled", "distil_budget", "markdown_tables", "PAPER_T5",
+           "PAPER_T6"]
