@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from minid3rqn.io import load_npz
-from minid3rqn.rl.reproduce import (FAMILY, TRANSFER, distil_budget, reproduce,
+from minid3rqn.rl.reproduce import (FAMILY, TRANSFER, distil_budget, parent_kinds, reproduce,
                                     reproduce_distilled)
 
 
@@ -117,6 +117,21 @@ def test_distil_budget_parent_steps():
         distil_budget(parent_steps=4000)
 
 
+def test_parent_kinds():
+    """The presets' parents (two narrow and two wide; the short chain: the two wide), and
+    ``--wide-parents K``: K wide ones, seeds 0 to K-1, every run name distinct."""
+    assert [name for name, *_ in parent_kinds()] == [
+        "parent_s0", "parent_s1", "parent_wide_s0", "parent_wide_s1"]
+    assert [name for name, *_ in parent_kinds(short=True)] == ["parent_wide_s0", "parent_wide_s1"]
+    four = parent_kinds(short=True, wide_parents=4)
+    assert [(name, seed) for name, seed, _ in four] == [
+        (f"parent_wide_s{k}", k) for k in range(4)]
+    assert all(torso == ["--conv-channels", "8,16,16"] for *_, torso in four)
+    assert len(parent_kinds(wide_parents=3)) == 5
+    with pytest.raises(ValueError, match="wide_parents must be >= 1; got 0"):
+        parent_kinds(wide_parents=0)
+
+
 def test_reproduce_students_error():
     with pytest.raises(ValueError, match="students must be >= 1; got 0"):
         reproduce_distilled(out=Path("unused"), students=0)
@@ -132,6 +147,9 @@ def test_reproduce_students_error():
     (["--recipe", "distil", "--depth", "gt"], "--recipe distil: its stages are fixed"),
     (["--parent-steps", "150000"], "--parent-steps 150000: only for --recipe distil"),
     (["--start", "best"], "--start best: only for --recipe distil"),
+    (["--wide-parents", "4"], "--wide-parents 4: only for --recipe distil"),
+    (["--recipe", "distil-short", "--wide-parents", "0"],
+     "--wide-parents: expected a number of parents >= 1; got 0"),
     (["--recipe", "distil-short", "--parent-steps", "5000"],
      "--parent-steps: expected more transitions than the parents' learning start \\(5000\\); "
      "got 5000"),

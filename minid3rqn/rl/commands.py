@@ -648,6 +648,10 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
                    help="--recipe distil or distil-short: transitions of each GT parent "
                         "(default 240000 and 120000), epsilon falling over the first 5/12 "
                         "of them as in both presets")
+    p.add_argument("--wide-parents", type=int, default=2, metavar="K",
+                   help="--recipe distil or distil-short: K wide GT parents (seeds 0 to K-1; "
+                        "default 2, as in both presets), trained --workers at a time; all of "
+                        "them join the teacher")
     p.add_argument("--start", choices=["first", "best"], default="first",
                    help="--recipe distil or distil-short: the wide parent stage 1 grows: "
                         "first (seed --seed, as run until now) or best (the higher success "
@@ -666,6 +670,12 @@ def run_reproduce(args) -> int:
     if args.start != "first" and args.recipe == "paper":
         raise SystemExit(f"reproduce --start {args.start}: only for --recipe distil and "
                          f"distil-short")
+    if args.wide_parents != 2 and args.recipe == "paper":
+        raise SystemExit(f"reproduce --wide-parents {args.wide_parents}: only for --recipe "
+                         f"distil and distil-short")
+    if args.wide_parents < 1:
+        raise SystemExit(f"reproduce --wide-parents: expected a number of parents >= 1; got "
+                         f"{args.wide_parents}")
     if args.parent_steps is not None:
         from .reproduce import FULL, QUICK
         starts = (QUICK if args.quick else FULL)["learning_starts"]
@@ -684,7 +694,8 @@ def run_reproduce(args) -> int:
                             students=args.students, skip_depth=args.skip_depth,
                             tables=args.table, workers=args.workers,
                             short=args.recipe == "distil-short",
-                            parent_steps=args.parent_steps, start=args.start)
+                            parent_steps=args.parent_steps, start=args.start,
+                            wide_parents=args.wide_parents)
         return 0
     if args.students != 1:
         raise SystemExit(f"reproduce --students {args.students}: only for --recipe distil "

@@ -243,11 +243,20 @@ STAGE2 = ["--mirror-augment", "--distil-kl", "1", "--distil-temperature", "0.1"]
 # The short chain (``--recipe distil-short``, ours), aimed at the issue's 45 minutes of two
 # cores: only the two wide parents (trained side by side), each half as long, with epsilon
 # falling over the first 50k of their 120k transitions; the two stages as above.
-SHORT_PARENTS = PARENTS[2:]
 SHORT = dict(steps=120_000, eps_decay=50_000)
 # Both presets let epsilon fall over the first 5/12 of a parent's transitions (100k of 240k,
 # 50k of 120k); ``--parent-steps`` keeps that share for any other length.
 EPS_SHARE = 5 / 12
+
+
+def parent_kinds(short: bool = False, wide_parents: int = 2) -> tuple:
+    """The GT parents of a distilled recipe, (run name, seed offset, torso flags) each: the
+    two paper-torso ones (the full recipe only), then ``wide_parents`` wide ones, seeds 0,
+    1, ... (``--wide-parents``; both presets have two)."""
+    if wide_parents < 1:
+        raise ValueError(f"reproduce_distilled: wide_parents must be >= 1; got {wide_parents}")
+    narrow = () if short else PARENTS[:2]
+    return narrow + tuple((f"parent_wide_s{k}", k, WIDE) for k in range(wide_parents))
 
 
 def _train_agent_cli(argv: list, run_dir: Path, budget: dict, quiet: bool = False) -> Path:
@@ -320,11 +329,13 @@ def distil_budget(quick: bool = False, short: bool = False, parent_steps: int | 
 def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students: int = 1,
                         skip_depth: bool = False, tables: str = "both", workers: int = 1,
                         budget: dict | None = None, short: bool = False,
-                        parent_steps: int | None = None, start: str = "first") -> dict:
+                        parent_steps: int | None = None, start: str = "first",
+                        wide_parents: int = 2) -> dict:
     """The distilled D3RQN end to end: the basic DispNet (and, for Table 6, the transfer
     ones) as in ``reproduce``, the four GT parents (``short``: the two wide ones at
     ``SHORT``'s budget; ``parent_steps``: that many transitions each, epsilon over
-    ``EPS_SHARE`` of them), stage 1, then ``students`` students of stage 2 (seeds
+    ``EPS_SHARE`` of them; ``wide_parents``: that many wide ones, seeds 0, 1, ...,
+    instead of two), stage 1, then ``students`` students of stage 2 (seeds
     ``seed``, ``seed`` + 1, ...), each flown on predicted depth in ``basic`` (and the
     transfer worlds), and the teacher on GT depth in ``basic``. Stage 1 grows a wide
     parent: ``start="first"`` the seed-``seed`` one (every run in docs/results.md until
@@ -337,6 +348,7 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
         raise ValueError(f"reproduce_distilled: students must be >= 1; got {students}")
     if start not in ("first", "best"):
         raise ValueError(f"reproduce_distilled: start must be 'first' or 'best'; got {start!r}")
+    kinds = parent_kinds(short, wide_parents)
     budget = distil_budget(quick, short, parent_steps, budget)
     out = out / "quick" if quick else out
     scenarios = ["basic"] + (list(TRANSFER) if tables in ("6", "both") else [])
@@ -344,8 +356,7 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     agents = out / "distil"
     recipe = "distil-short" if short else "distil"
     results = {"recipe": recipe, "budget": budget, "seed": seed, "students": [],
-               "started": time.strftime("%Y-%m-%d %H:%M:%S")}
-    kinds = SHORT_PARENTS if short else PARENTS
+               "wide_parents": wide_parents, "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     parents = _train_all([     # the shipped D3RQN's 240k recipe (short: SHORT's), GT depth
         (["--variant", "d3rqn", "--seed", str(seed + offset), "--steps", str(budget["steps"]),
           "--learning-starts", str(budget["learning_starts"]),
@@ -392,7 +403,9 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
 def distilled_table(results: dict) -> str:
     """The students' rates per world (predicted depth), against the issue's targets."""
     short = results.get("recipe") == "distil-short"
-    parents = "the two wide parents" if short else "the four parents"
+    n = results.get("wide_parents", 2) + (0 if short else 2)
+    count = {2: "two", 3: "three", 4: "four", 5: "five", 6: "six"}.get(n, str(n))
+    parents = f"the {count} wide parents" if short else f"the {count} parents"
     steps = results.get("budget", {}).get("steps")
     if steps:
         parents += f", {steps:,} transitions each"
@@ -414,5 +427,6 @@ def distilled_table(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["reproduce", "reproduce_distilled", "distil_budget", "markdown_tables", "PAPER_T5",
+__all__ = ["reproduce", "reproduce_distilled", "distil_budget", "parent_kinds", "markdown_tables",
+           "PAPER_T5",
            "PAPER_T6"]
