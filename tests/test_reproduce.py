@@ -103,6 +103,23 @@ def test_reproduce_distilled_short_smoke(tmp_path):
     assert f"--init-model {res['start']}" in stage1, stage1
 
 
+def test_reproduce_distilled_without_stage1_smoke(tmp_path):
+    """``stage1=False`` (``--skip-stage1``) with one wide parent (``--wide-parents 1``):
+    no stage 1 run; stage 2 starts from the parent itself, its LSTM grown."""
+    res = reproduce_distilled(out=tmp_path, students=1, tables="5", skip_depth=True,
+                              budget={"smoke": True, "flights": 4}, short=True,
+                              wide_parents=1, stage1=False)
+    agents = tmp_path / "distil"
+    assert sorted(p.name for p in agents.iterdir() if p.is_dir()) == [
+        "parent_wide_s0", "stage2_student_s0"]
+    student = load_npz(agents / "stage2_student_s0" / "model.npz")[1]["command"]
+    assert f"--init-model {agents / 'parent_wide_s0' / 'model.npz'} --init-widen" in student
+    assert "--teachers " + str(agents / "parent_wide_s0" / "model.npz") in student
+    assert res["stage1"] is False and "+" not in res["teacher"]["spec"]
+    table = (agents / "results.md").read_text()
+    assert "the one wide parents" not in table and "No stage 1" in table
+
+
 def test_distil_budget_parent_steps():
     """The presets' parents (240k and 120k, epsilon over 5/12 of them) and any other length
     with the same share; the stages keep their budgets."""
@@ -148,6 +165,7 @@ def test_reproduce_students_error():
     (["--parent-steps", "150000"], "--parent-steps 150000: only for --recipe distil"),
     (["--start", "best"], "--start best: only for --recipe distil"),
     (["--wide-parents", "4"], "--wide-parents 4: only for --recipe distil"),
+    (["--skip-stage1"], "--skip-stage1: only for --recipe distil"),
     (["--recipe", "distil-short", "--wide-parents", "0"],
      "--wide-parents: expected a number of parents >= 1; got 0"),
     (["--recipe", "distil-short", "--parent-steps", "5000"],

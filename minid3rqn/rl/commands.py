@@ -652,6 +652,10 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
                    help="--recipe distil or distil-short: K wide GT parents (seeds 0 to K-1; "
                         "default 2, as in both presets), trained --workers at a time; all of "
                         "them join the teacher")
+    p.add_argument("--skip-stage1", action="store_true",
+                   help="--recipe distil or distil-short: no stage 1; stage 2 starts from the "
+                        "wide parent, its LSTM grown to 256 units (ours; docs/results.md, "
+                        "'More parents or longer ones')")
     p.add_argument("--start", choices=["first", "best"], default="first",
                    help="--recipe distil or distil-short: the wide parent stage 1 grows: "
                         "first (seed --seed, as run until now) or best (the higher success "
@@ -670,6 +674,8 @@ def run_reproduce(args) -> int:
     if args.start != "first" and args.recipe == "paper":
         raise SystemExit(f"reproduce --start {args.start}: only for --recipe distil and "
                          f"distil-short")
+    if args.skip_stage1 and args.recipe == "paper":
+        raise SystemExit("reproduce --skip-stage1: only for --recipe distil and distil-short")
     if args.wide_parents != 2 and args.recipe == "paper":
         raise SystemExit(f"reproduce --wide-parents {args.wide_parents}: only for --recipe "
                          f"distil and distil-short")
@@ -695,7 +701,7 @@ def run_reproduce(args) -> int:
                             tables=args.table, workers=args.workers,
                             short=args.recipe == "distil-short",
                             parent_steps=args.parent_steps, start=args.start,
-                            wide_parents=args.wide_parents)
+                            wide_parents=args.wide_parents, stage1=not args.skip_stage1)
         return 0
     if args.students != 1:
         raise SystemExit(f"reproduce --students {args.students}: only for --recipe distil "

@@ -330,12 +330,13 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
                         skip_depth: bool = False, tables: str = "both", workers: int = 1,
                         budget: dict | None = None, short: bool = False,
                         parent_steps: int | None = None, start: str = "first",
-                        wide_parents: int = 2) -> dict:
+                        wide_parents: int = 2, stage1: bool = True) -> dict:
     """The distilled D3RQN end to end: the basic DispNet (and, for Table 6, the transfer
     ones) as in ``reproduce``, the four GT parents (``short``: the two wide ones at
     ``SHORT``'s budget; ``parent_steps``: that many transitions each, epsilon over
     ``EPS_SHARE`` of them; ``wide_parents``: that many wide ones, seeds 0, 1, ...,
-    instead of two), stage 1, then ``students`` students of stage 2 (seeds
+    instead of two), stage 1 (``stage1=False``: none; stage 2 starts from the wide parent,
+    its LSTM grown to 256 units as stage 1 would grow it), then ``students`` students of stage 2 (seeds
     ``seed``, ``seed`` + 1, ...), each flown on predicted depth in ``basic`` (and the
     transfer worlds), and the teacher on GT depth in ``basic``. Stage 1 grows a wide
     parent: ``start="first"`` the seed-``seed`` one (every run in docs/results.md until
@@ -372,18 +373,21 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
                                  for m in wide.values()]
         rates = [r["rate"] for r in results["validation"]]
         start_from = list(wide.values())[rates.index(max(rates))]
-    results["start"] = str(start_from)
+    results["start"], results["stage1"] = str(start_from), stage1
     starts = str(budget["stage_learning_starts"])
-    stage1 = _train_agent_cli(
-        ["--variant", "d3rqn", "--seed", str(seed), "--steps", str(budget["stage1_steps"]),
-         "--learning-starts", starts, "--depth", "gt", "--init-model", str(start_from),
-         "--init-widen", *STUDENT, "--teachers", teacher,
-         "--teacher-mix-steps", str(budget["stage1_steps"] // 2)],
-        agents / "stage1_gt", budget)
+    if stage1:
+        init = [str(_train_agent_cli(
+            ["--variant", "d3rqn", "--seed", str(seed), "--steps", str(budget["stage1_steps"]),
+             "--learning-starts", starts, "--depth", "gt", "--init-model", str(start_from),
+             "--init-widen", *STUDENT, "--teachers", teacher,
+             "--teacher-mix-steps", str(budget["stage1_steps"] // 2)],
+            agents / "stage1_gt", budget))]
+    else:                    # stage 2 grows the parent's LSTM itself
+        init = [str(start_from), "--init-widen"]
     trained = _train_all([
         (["--variant", "d3rqn", "--seed", str(seed + k), "--steps", str(budget["stage2_steps"]),
           "--learning-starts", starts, "--depth", "pred",
-          "--depth-model", str(depth_models["basic"]), "--init-model", str(stage1),
+          "--depth-model", str(depth_models["basic"]), "--init-model", *init,
           *STUDENT, "--teachers", teacher,
           "--teacher-mix-steps", str(budget["stage2_steps"] // 2), *STAGE2],
          agents / f"stage2_student_s{seed + k}", budget) for k in range(students)], workers)
@@ -405,7 +409,8 @@ def distilled_table(results: dict) -> str:
     short = results.get("recipe") == "distil-short"
     n = results.get("wide_parents", 2) + (0 if short else 2)
     count = {2: "two", 3: "three", 4: "four", 5: "five", 6: "six"}.get(n, str(n))
-    parents = f"the {count} wide parents" if short else f"the {count} parents"
+    parents = ("the wide parent" if n == 1 else f"the {count} wide parents") if short else \
+        f"the {count} parents"
     steps = results.get("budget", {}).get("steps")
     if steps:
         parents += f", {steps:,} transitions each"
@@ -422,8 +427,10 @@ def distilled_table(results: dict) -> str:
     for v in results.get("validation", []):
         lines.append(f"| {v['spec']}, GT depth, **validation worlds** | basic | {v['rate']:.3f} "
                      f"| [{v['ci_low']:.3f}, {v['ci_high']:.3f}] | |")
-    if "start" in results:
+    if "start" in results and results.get("stage1", True):
         lines.append(f"\nStage 1 grew {results['start']}.")
+    elif "start" in results:
+        lines.append(f"\nNo stage 1: stage 2 grew {results['start']}.")
     return "\n".join(lines) + "\n"
 
 
