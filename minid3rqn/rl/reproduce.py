@@ -336,8 +336,8 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     ``SHORT``'s budget; ``parent_steps``: that many transitions each, epsilon over
     ``EPS_SHARE`` of them; ``wide_parents``: that many wide ones, seeds 0, 1, ...,
     instead of two), stage 1 (``stage1=False``: none; stage 2 starts from the wide parent,
-    its LSTM grown to 256 units as stage 1 would grow it), then ``students`` students of stage 2 (seeds
-    ``seed``, ``seed`` + 1, ...), each flown on predicted depth in ``basic`` (and the
+    its LSTM grown to 256 units as stage 1 would grow it), then ``students`` students of
+    stage 2 (seeds ``seed``, ``seed`` + 1, ...), each flown on predicted depth in ``basic`` (and the
     transfer worlds), and the teacher on GT depth in ``basic``. Stage 1 grows a wide
     parent: ``start="first"`` the seed-``seed`` one (every run in docs/results.md until
     the twenty-seventh session), ``"best"`` the one with the higher success on GT depth
@@ -427,13 +427,11 @@ def distilled_table(results: dict) -> str:
     for v in results.get("validation", []):
         lines.append(f"| {v['spec']}, GT depth, **validation worlds** | basic | {v['rate']:.3f} "
                      f"| [{v['ci_low']:.3f}, {v['ci_high']:.3f}] | |")
-    if "start" in results and results.get("stage1", True):
-        lines.append(f"\nStage 1 grew {results['start']}.")
-    elif "start" in results:
-        lines.append(f"\nNo stage 1: stage 2 grew {results['start']}.")
+    if "start" in results:
+        grew = "Stage 1" if results.get("stage1", True) else "No stage 1: stage 2"
+        lines.append(f"\n{grew} grew {results['start']}.")
     return "\n".join(lines) + "\n"
 
 
 __all__ = ["reproduce", "reproduce_distilled", "distil_budget", "parent_kinds", "markdown_tables",
-           "PAPER_T5",
-           "PAPER_T6"]
+           "PAPER_T5", "PAPER_T6"]
