@@ -162,20 +162,27 @@ class DispNetInference:
       layer that reads it (in the decoder: upsampled into the first channels, the
       encoder's skip features into the last ones, so "upsample, crop, concat, pad" is
       a few strided copies); the buffers are allocated once per batch size;
-    - applies bias + ELU in place (``bias_elu_``);
+    - applies bias + ELU in place (``bias_elu_``), with ``exp(x) - 1`` for the
+      negative side where ``ag.elu`` has ``expm1(x)``: NumPy vectorizes ``exp`` on
+      every x86-64 CPU but ``expm1`` only with AVX-512, and without it the ELU cost more
+      than all the convolutions (1.8 against 1.4 ms a frame on an AMD EPYC);
     - computes only the finest disparity head, the one inference uses;
     - at a decoder level without skip features and without cropping (the finest one,
       the largest layer), runs "upsample x2, conv 3x3" as four 2x2 convolutions of
       the small image (``upsample_conv_phases``: 4/9 of the work), and the 1-channel
       head by contracting channels first (``ConvInference``).
 
-    The last two sum the same products in another order, so the output equals
-    ``forward`` to float round-off (about 1e-6 relative in float32), not to the bit;
-    everything else is the same arithmetic in the same order.
+    The last two sum the same products in another order, and the ELU rounds its
+    negative side differently (by at most about 1.2e-7 in float32), so the output
+    equals ``forward`` to float round-off (about 1e-6 relative in float32), not to the
+    bit; everything else is the same arithmetic in the same order.
 
     Large batches run ``chunk`` frames at a time, so that the working set (about
     1 MB of buffers per frame at 32x104) stays in the CPU caches; a batch gains
     little over single frames anyway (the GEMMs are already efficient at batch 1).
+    How little: chunks of 2 to 64 frames run within 3% of each other on a 16 MB-L3
+    AMD EPYC (``benchmarks/bench_dispnet_chunk.py``); the chunk changes the last bit of
+    some outputs (the GEMMs' row counts change), so the default stays 8.
 
     A snapshot: weights changed after construction (training) are not seen; build a
     new one with ``net.inference()``. Not thread-safe (the buffers are shared): one

@@ -1,0 +1,114 @@
+"""How many frames should the DispNet's inference path run at a time?
+
+    python benchmarks/bench_dispnet_chunk.py                     # chunks 1,2,4,8,16,32,64
+    python benchmarks/bench_dispnet_chunk.py --chunks 4,8,16 --frames 512 --repeat 7
+
+``DispNetInference`` (nets/dispnet.py) runs a large batch ``chunk`` frames at a time
+(default 8), so that its buffers (about 1 MB per frame at 32x104) stay in the CPU
+caches. The best chunk depends on the caches of the machine; the evaluation of 2000
+flights on predicted depth spends most of its time here, so this script measures it.
+
+Measured: the shipped basic DispNet (``minid3rqn/models/depth_basic.npz``) on
+``--frames`` RGB frames rendered in ``basic`` worlds (uint8, as the flight loop gives
+them), one thread (the evaluation runs one process per core), median of ``--repeat``
+runs after two warm-ups. For each chunk it also reports the largest difference from the
+chunk-8 output: 0.0 means the chunk changes only the speed, not a single bit of any
+evaluation (a GEMM may round differently when its row count changes; if it does here,
+changing the default would move every recorded predicted-depth result).
+
+Output: one JSON line per chunk, then one with the machine's caches.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")          # before NumPy loads (one core per process)
+
+import numpy as np  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+from minid3rqn.depth.evaluate import DepthEstimator  # noqa: E402
+from minid3rqn.world import Camera, SceneBatch, make_scene, render_batch, sample_start_pose  # noqa: E402
+
+MODEL = os.path.join(ROOT, "minid3rqn", "models", "depth_basic.npz")
+
+
+def rendered_frames(n: int, seed: int = 0) -> np.ndarray:
+    """``n`` uint8 RGB frames (n, H, W, 3) from random free poses in ``basic`` worlds."""
+    rng = np.random.default_rng(seed)
+    scenes = [make_scene("basic", 1_000_000 + k) for k in range(8)]
+    pick = rng.integers(0, len(scenes), n)
+    poses = np.array([sample_start_pose(scenes[k], rng) for k in pick])
+    rgb, _ = render_batch(SceneBatch([scenes[k] for k in pick]), poses, Camera())
+    return np.ascontiguousarray(rgb)
+
+
+def median_seconds(fn, repeat: int) -> float:
+    for _ in range(2):
+        fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def caches() -> dict:
+    """The CPU's cache sizes as Linux reports them (empty elsewhere)."""
+    out = {}
+    base = "/sys/devices/system/cpu/cpu0/cache"
+    try:
+        for d in sorted(os.listdir(base)):
+            if not d.startswith("index"):
+                continue
+            with open(os.path.join(base, d, "level")) as f:
+                level = f.read().strip()
+            with open(os.path.join(base, d, "type")) as f:
+                kind = f.read().strip()
+            with open(os.path.join(base, d, "size")) as f:
+                out[f"L{level}{'' if kind == 'Unified' else kind[0].lower()}"] = f.read().strip()
+    except OSError:
+        pass
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--chunks", default="1,2,4,8,16,32,64",
+                   help="comma-separated chunk sizes to time")
+    p.add_argument("--frames", type=int, default=512, help="frames per timed call")
+    p.add_argument("--repeat", type=int, default=5)
+    args = p.parse_args()
+    try:
+        chunks = [int(c) for c in args.chunks.split(",")]
+    except ValueError:
+        p.error(f"--chunks must be comma-separated integers; got {args.chunks!r}")
+    if min(chunks) < 1 or args.frames < 1 or args.repeat < 1:
+        p.error("--chunks, --frames and --repeat must be >= 1")
+
+    est = DepthEstimator.load(MODEL)
+    rgb = rendered_frames(args.frames)
+    reference = est.net.inference(chunk=8)(rgb)
+    for chunk in chunks:
+        fast = est.net.inference(chunk=chunk)
+        out = fast(rgb)
+        diff = float(np.max(np.abs(out.astype(np.float64) - reference)))
+        s = median_seconds(lambda: fast(rgb), args.repeat)
+        print(json.dumps({"chunk": chunk, "frames": args.frames,
+                          "ms_per_frame": round(1000 * s / args.frames, 3),
+                          "frames_per_s": round(args.frames / s, 1),
+                          "max_abs_diff_vs_chunk8": diff}), flush=True)
+    print(json.dumps({"caches": caches(), "threads": os.environ.get("OMP_NUM_THREADS")}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
