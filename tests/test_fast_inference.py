@@ -111,21 +111,22 @@ def test_bias_elu_is_ag_elu_to_round_off(dtype):
     (float64) and of ``ag.elu``; and it must really be an ELU (bias added, saturating
     at -1)."""
     rng = np.random.default_rng(8)
-    y = np.concatenate([rng.normal(scale=3, size=5000), -np.logspace(-30, 2, 2000),
+    y = np.concatenate([rng.normal(scale=3, size=5000),
                         [0.0, -0.0, -1e-30, 1e-30, -100.0, 50.0, -1e-3]]).astype(dtype)
-    b = dtype(0.25)
-    x = y + b
-    ref = ag.elu(x).data
-    got = bias_elu_(y.copy(), b, np.empty_like(y), np.zeros_like(y))
-    assert got.dtype == dtype
-    pos = x > 0
-    np.testing.assert_array_equal(got[pos], ref[pos])
-    x64 = x.astype(np.float64)
-    exact = np.where(pos, x64, np.expm1(np.minimum(x64, 0.0)))
+    tiny = -np.logspace(-30, 2, 2000).astype(dtype)        # negatives of every size
     eps = np.finfo(dtype).eps
-    assert np.abs(got - exact).max() <= 2 * eps
-    assert np.abs(got - ref).max() <= 2 * eps
-    assert got.min() >= -1.0 and got[x < -40].max() == -1.0
+    for y, b in ((y, dtype(0.25)), (tiny, None)):
+        x = y if b is None else y + b
+        ref = ag.elu(x).data
+        got = bias_elu_(y.copy(), b, np.empty_like(y), np.zeros_like(y))
+        assert got.dtype == dtype
+        pos = x > 0
+        np.testing.assert_array_equal(got[pos], ref[pos])
+        x64 = x.astype(np.float64)
+        exact = np.where(pos, x64, np.expm1(np.minimum(x64, 0.0)))
+        assert np.abs(got - exact).max() <= 2 * eps
+        assert np.abs(got - ref).max() <= 2 * eps
+        assert got.min() >= -1.0 and got[x < -40].max() == -1.0
 
 
 # -- the whole network -----------------------------------------------------------------
