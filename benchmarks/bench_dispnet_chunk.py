@@ -20,7 +20,16 @@ Measured on an AMD EPYC (twenty-ninth session; docs/results.md, "The short chain
 from nothing, its students in the transfer worlds, and a faster ELU"): chunks of 2 to
 64 within a few percent of each other, and not to the bit, so the default stays 8.
 
-Output: one JSON line per chunk, then one with the machine's caches.
+``--elu`` (twenty-ninth session) instead times where a frame's time goes: the DispNet
+in chunks of 8 with its in-place bias + ELU as shipped (``exp(x) - 1``), as it was
+before (``expm1``, the arithmetic of ``ag.elu``), and replaced by a no-op (what is left:
+the convolutions and the copies between layers; the outputs are then wrong, only the
+time means something); and ``np.expm1`` against ``np.exp`` per float32 element, on an
+array the size of the DispNet's largest layer for 8 frames.
+
+    python benchmarks/bench_dispnet_chunk.py --elu
+
+Output: one JSON line per chunk (or per ELU variant), then one with the machine's caches.
 """
 from __future__ import annotations
 
@@ -39,6 +48,7 @@ sys.path.insert(0, ROOT)
 
 from bench_depth import _median_ms  # noqa: E402  (this folder is on sys.path)
 from minid3rqn.depth.evaluate import DepthEstimator  # noqa: E402
+from minid3rqn.nets import dispnet  # noqa: E402
 from minid3rqn.world import Camera, SceneBatch, make_scene, render_batch, sample_start_pose  # noqa: E402
 
 MODEL = os.path.join(ROOT, "minid3rqn", "models", "depth_basic.npz")
@@ -73,12 +83,52 @@ def caches() -> dict:
     return out
 
 
+def _elu_expm1_(y, bias, scratch, zeros):
+    """The inference ELU as it was until the twenty-eighth session (``ag.elu``'s
+    arithmetic to the bit)."""
+    if bias is not None:
+        y += bias
+    np.minimum(y, zeros, out=scratch)
+    np.maximum(y, zeros, out=y)
+    np.expm1(scratch, out=scratch)
+    y += scratch
+    return y
+
+
+def _no_elu_(y, bias, scratch, zeros):
+    return y
+
+
+def bench_elu(est: DepthEstimator, rgb: np.ndarray, repeat: int) -> None:
+    """Print the ms per frame of the DispNet with each ELU variant, and the ns per
+    element of ``np.expm1`` and ``np.exp`` (see the module docstring)."""
+    shipped = dispnet.bias_elu_
+    variants = {"exp (shipped)": shipped, "expm1 (before)": _elu_expm1_, "none": _no_elu_}
+    try:
+        for name, fn in variants.items():
+            dispnet.bias_elu_ = fn          # read by every layer at call time
+            fast = est.net.inference(chunk=8)
+            ms = _median_ms(lambda: fast(rgb), repeat)
+            print(json.dumps({"elu": name, "frames": len(rgb),
+                              "ms_per_frame": round(ms / len(rgb), 3)}), flush=True)
+    finally:
+        dispnet.bias_elu_ = shipped
+    x = -np.random.default_rng(0).random(8 * 32 * 104 * 16).astype(np.float32)
+    out = np.empty_like(x)
+    for name, ufunc in (("expm1", np.expm1), ("exp", np.exp)):
+        ms = _median_ms(lambda: ufunc(x, out=out), 20 * repeat)
+        print(json.dumps({"ufunc": name, "elements": x.size,
+                          "ns_per_element": round(1e6 * ms / x.size, 2)}), flush=True)
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--chunks", default="1,2,4,8,16,32,64",
                    help="comma-separated chunk sizes to time")
     p.add_argument("--frames", type=int, default=512, help="frames per timed call")
     p.add_argument("--repeat", type=int, default=5)
+    p.add_argument("--elu", action="store_true",
+                   help="time the ELU variants and expm1 against exp instead of the chunks")
     args = p.parse_args()
     try:
         chunks = [int(c) for c in args.chunks.split(",")]
@@ -89,6 +139,10 @@ def main() -> int:
 
     est = DepthEstimator.load(MODEL)
     rgb = rendered_frames(args.frames)
+    if args.elu:
+        bench_elu(est, rgb, args.repeat)
+        print(json.dumps({"caches": caches(), "threads": os.environ.get("OMP_NUM_THREADS")}))
+        return 0
     reference = est.net.inference(chunk=8)(rgb)
     for chunk in chunks:
         fast = est.net.inference(chunk=chunk)

@@ -165,7 +165,8 @@ class DispNetInference:
     - applies bias + ELU in place (``bias_elu_``), with ``exp(x) - 1`` for the
       negative side where ``ag.elu`` has ``expm1(x)``: NumPy vectorizes ``exp`` on
       every x86-64 CPU but ``expm1`` only with AVX-512, and without it the ELU cost more
-      than all the convolutions (1.8 against 1.4 ms a frame on an AMD EPYC);
+      than all the convolutions (on an AMD EPYC: 3.62 ms a frame, 1.53 without the
+      ELU; ``benchmarks/bench_dispnet_chunk.py --elu``);
     - computes only the finest disparity head, the one inference uses;
     - at a decoder level without skip features and without cropping (the finest one,
       the largest layer), runs "upsample x2, conv 3x3" as four 2x2 convolutions of

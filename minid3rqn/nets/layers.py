@@ -298,8 +298,9 @@ def bias_elu_(y: np.ndarray, bias, scratch: np.ndarray, zeros: np.ndarray) -> np
     is replaced by ``exp(.) - 1``, for speed: NumPy runs ``exp`` with SIMD instructions
     on any x86-64 CPU of the last decade, but ``expm1`` only where AVX-512 is present
     (through Intel's SVML); elsewhere it calls the C library once per element. On an
-    AVX2 machine (AMD EPYC, twenty-ninth session) that is 9.6 ns against 1.8 ns per
-    float32, and this function was 55% of the DispNet's inference time.
+    AVX2 machine (AMD EPYC, twenty-ninth session) that is 11.0 ns against 1.9 ns per
+    float32, and this function was more than half of the DispNet's inference time
+    (``python benchmarks/bench_dispnet_chunk.py --elu``).
 
     What that costs in accuracy: for x > 0 nothing (the second term is exactly 0, so
     y = x to the bit, as in ``ag.elu``). For x <= 0, ``exp(x)`` lies in (0, 1] and
