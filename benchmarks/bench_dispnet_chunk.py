@@ -16,7 +16,7 @@ the largest difference from the chunk-8 output: 0.0 means the chunk changes only
 speed, not a single bit of any evaluation (a GEMM may round differently when its row
 count changes; if it does, changing the default would change every predicted depth).
 
-Measured on an AMD EPYC (twenty-ninth session; docs/results.md, "The short chain timed
+Measured on an AMD EPYC (twenty-ninth session; docs/experiments.md, "The short chain timed
 from nothing, its students in the transfer worlds, and a faster ELU"): chunks of 2 to
 64 within a few percent of each other, and not to the bit, so the default stays 8.
 

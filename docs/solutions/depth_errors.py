@@ -2,7 +2,7 @@
 
 The DispNet's error e = ln(predicted / GT depth), measured in this project, has a std of
 0.146, split into a part per frame (std 0.044), per column (0.103), per row (0.038) and a
-finer rest (0.086) (docs/results.md, "Two ways to make a GT-trained net robust to those
+finer rest (0.086) (docs/experiments.md, "Two ways to make a GT-trained net robust to those
 errors"). This corruption draws an error with those four parts, afresh for every frame,
 and returns depth * exp(e) (positive for any e):
 
@@ -14,7 +14,7 @@ and returns depth * exp(e) (positive for any e):
 
 What is measured is only the size of each part. The rest is a guess, to discuss: that
 the errors are Gaussian in ln(depth), independent of the depth itself (the costly ones
-are at 2-4 m: docs/results.md, "Which depth errors cost flights"), that the per-column
+are at 2-4 m: docs/experiments.md, "Which depth errors cost flights"), that the per-column
 part varies smoothly over about 15 columns (13 degrees), and that the rest is pixel
 noise (a DispNet's finer errors probably come in patches). The library's
 ``train-agent --depth-noise`` (rl/flights.py, ``Flights.depth_error``) is a cousin of

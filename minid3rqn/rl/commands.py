@@ -21,7 +21,7 @@ MODELS = Path(__file__).resolve().parent.parent / "models"
 RUNS = Path("runs")
 SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
 # The shipped Q-nets by name (fly --model NAME): the paper's training (the default), and
-# our distilled student of `basic` (reproduce --recipe distil; docs/results.md).
+# our distilled student of `basic` (reproduce --recipe distil; docs/experiments.md).
 SHIPPED_QNETS = {"paper": SHIPPED_QNET, "distil": MODELS / "d3rqn_distil.npz"}
 VARIANT_NAMES = {"ddqn": "DDQN", "d3qn": "D3QN", "ddrqn": "DDRQN", "d3rqn": "D3RQN"}
 
@@ -605,7 +605,8 @@ def run_fly(args) -> int:
         print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
               f"result here: {recorded['rate']:.3f} [{recorded['ci95'][0]:.3f}, "
               f"{recorded['ci95'][1]:.3f}] over {recorded['flights']} flights (seed "
-              f"{recorded['seed']}; docs/results.md)", file=sys.stderr)
+              f"{recorded['seed']}; {Path(model).with_suffix('.json').name} beside it, "
+              f"docs/results.md)", file=sys.stderr)
     return 0
 
 
@@ -639,7 +640,7 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
     p.add_argument("--recipe", choices=["paper", "distil", "distil-short"], default="paper",
                    help="paper: Tables 5 and 6 as above; distil (ours): the distilled D3RQN "
                         "that flies basic at 0.95 on predicted depth (four GT parents, two "
-                        "distillation stages; docs/results.md); distil-short (ours): the same "
+                        "distillation stages; docs/experiments.md); distil-short (ours): the same "
                         "with only the two wide parents, 120k transitions each")
     p.add_argument("--students", type=int, default=1,
                    help="--recipe distil or distil-short: students of the second stage "
@@ -654,7 +655,7 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
                         "them join the teacher")
     p.add_argument("--skip-stage1", action="store_true",
                    help="--recipe distil or distil-short: no stage 1; stage 2 starts from the "
-                        "wide parent, its LSTM grown to 256 units (ours; docs/results.md, "
+                        "wide parent, its LSTM grown to 256 units (ours; docs/experiments.md, "
                         "'More parents or longer ones')")
     p.add_argument("--start", choices=["first", "best"], default="first",
                    help="--recipe distil or distil-short: the wide parent stage 1 grows: "

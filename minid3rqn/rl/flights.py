@@ -22,7 +22,7 @@ The Q-nets read ``frames``, depth encoded into [0, 1] (``FlightsConfig.encoding`
 Inverse depth spends the input's range near the drone: 1 m, 2 m and 10 m read 0.5,
 0.25 and 0.05, where as depth they read 0.1, 0.2 and 1.0; and a depth error of a given
 fraction weighs less the farther away it is. Whether that helps a net on the DispNet's
-depth: docs/results.md, "Which depth errors cost flights".
+depth: docs/experiments.md, "Which depth errors cost flights".
 
 After ``max_steps`` actions without a collision a flight is *truncated* (a success, not
 a terminal state). With ``autoreset`` a finished flight restarts at once in a new world
@@ -240,7 +240,7 @@ class Flights:
         training-time augmentation, ``FlightsConfig.depth_noise`` = s).
 
         A DispNet's errors are not pixel noise: whole stretches of a frame are too near
-        or too far together (docs/results.md, "Which depth errors cost flights"). So the
+        or too far together (docs/experiments.md, "Which depth errors cost flights"). So the
         error of pixel (row v, column u) is a sum of three smooth parts,
 
             e(v, u) = a + b(u) + c(v),   a ~ N(0, (s/2)^2),

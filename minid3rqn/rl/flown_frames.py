@@ -4,7 +4,7 @@ The paper trains its DispNet on frames of manually flown flights, and so does
 ``depth.data.collect`` (a scripted pilot). But the DispNet is then read by a Q-net,
 which flies its own way: it holds its course longer, turns later, and passes
 obstacles at the distances it has learnt to tolerate. The depth errors that cost
-flights are those at 2-4 m, where the Q-net decides (docs/results.md, "Which depth
+flights are those at 2-4 m, where the Q-net decides (docs/experiments.md, "Which depth
 errors cost flights"). ``collect_flown`` films what the Q-net itself sees:
 
     for every chunk of ``chunk`` flights (fresh training worlds, its own seed):
