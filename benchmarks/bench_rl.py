@@ -30,6 +30,8 @@ Measured (medians over ``--repeat`` runs after warm-ups, float32):
   (e.g. a student with a wider LSTM, ``train-agent --init-widen``).
 - ``--ensemble N``: the framework and eval parts fly N copies of the D3RQN as an
   ensemble (``EnsemblePolicy``, docs/d3rqn.md section 10): N Q-net passes per step.
+- ``--mirror``: each Q-net also flies the mirrored view (``evaluate --mirror``,
+  ``fly --mirror``): twice the Q-net passes per step, one DispNet pass.
 
 Threads: the script re-runs itself in a child with OMP/OPENBLAS/MKL_NUM_THREADS set
 before NumPy loads (and ``torch.set_num_threads``). Output: one JSON line per part.
@@ -163,10 +165,11 @@ def _torch_qnet(net, torch):
     return t
 
 
-def _qnet_model(ensemble: int = 1, qnet: str | None = None):
+def _qnet_model(ensemble: int = 1, qnet: str | None = None, mirror: bool = False):
     """The shipped D3RQN (else an untrained one: same speed), or the file ``qnet``;
     ``ensemble`` > 1: that many copies of it flying as an ``EnsemblePolicy`` (the speed
-    does not depend on the weights)."""
+    does not depend on the weights); ``mirror``: each with its mirrored twin, as
+    ``evaluate --mirror`` flies them."""
     from minid3rqn.rl.commands import SHIPPED_QNET
     from minid3rqn.rl.policies import EnsemblePolicy, QNetPolicy
     from minid3rqn.nets.qnet import QNet, QNetConfig
@@ -177,11 +180,13 @@ def _qnet_model(ensemble: int = 1, qnet: str | None = None):
         if SHIPPED_QNET.exists():
             return QNetPolicy.load(SHIPPED_QNET, "D3RQN"), str(SHIPPED_QNET)
         return QNetPolicy(QNet(QNetConfig(), rng=0), "D3RQN (untrained)"), "untrained"
-    if ensemble == 1:
-        return one()
     members = [one() for _ in range(ensemble)]
-    return (EnsemblePolicy([m for m, _ in members]),
-            f"ensemble of {ensemble} x {members[0][1]}")
+    name = members[0][1] if ensemble == 1 else f"ensemble of {ensemble} x {members[0][1]}"
+    policies = [m for m, _ in members]
+    if mirror:
+        policies += [m.mirrored() for m in policies]
+        name += ", with the mirror image"
+    return (policies[0] if len(policies) == 1 else EnsemblePolicy(policies)), name
 
 
 class _TimedEstimator:
@@ -200,7 +205,7 @@ class _TimedEstimator:
 
 def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int = 1,
                     depth_model: str | None = None, flip: bool = False,
-                    qnet: str | None = None) -> dict:
+                    qnet: str | None = None, mirror: bool = False) -> dict:
     """Render -> DispNet -> Q-net step -> world step for ``n_flights`` flights in lockstep
     (batched over flights): frames per second (= Hz per flight when n_flights = 1).
 
@@ -211,11 +216,12 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
     doing the perception twice per step; ``rendered_twice`` runs that old loop.)
     ``depth_model``: another DispNet file (e.g. a two-frame one, train-depth --prev-frame).
     ``flip``: the DispNet's test-time flip (``--flip-tta``: two DispNet passes per frame).
-    ``qnet``: another Q-net file (``--qnet``; e.g. a wider LSTM) instead of the shipped one."""
+    ``qnet``: another Q-net file (``--qnet``; e.g. a wider LSTM) instead of the shipped one.
+    ``mirror``: each Q-net with its mirror image (``--mirror``)."""
     import numpy as np
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.flights import Flights
-    policy, model = _qnet_model(ensemble, qnet)
+    policy, model = _qnet_model(ensemble, qnet, mirror)
     depth_path = Path(depth_model) if depth_model else shipped_depth_model("basic")
     if depth_path.exists():
         est, depth_name = load_depth_estimator(depth_path, flip), f"DispNet {depth_path.name}"
@@ -292,10 +298,10 @@ def bench_framework_rendered_twice(repeat: int, threads: int, n_flights: int = 1
 
 
 def bench_eval(flights: int, threads: int, workers: int = 1, ensemble: int = 1,
-               qnet: str | None = None) -> list:
+               qnet: str | None = None, mirror: bool = False) -> list:
     from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.evaluate import evaluate_policy
-    policy, model = _qnet_model(ensemble, qnet)
+    policy, model = _qnet_model(ensemble, qnet, mirror)
     outs = []
     modes = [("gt", None)]
     if shipped_depth_model("basic").exists():
@@ -320,7 +326,8 @@ def child(args) -> None:
         for n_flights in (1, 16):
             print(json.dumps(bench_framework(args.repeat, args.threads, n_flights,
                                              args.ensemble, args.depth_model,
-                                             args.flip_tta, args.qnet)), flush=True)
+                                             args.flip_tta, args.qnet, args.mirror)),
+                  flush=True)
     if "framework_old" in parts:
         for n_flights in (1, 16):
             print(json.dumps(bench_framework_rendered_twice(args.repeat, args.threads,
@@ -328,7 +335,7 @@ def child(args) -> None:
     if "eval" in parts:
         for workers in [int(w) for w in args.eval_workers.split(",")]:
             for row in bench_eval(args.eval_flights, args.threads, workers, args.ensemble,
-                                  args.qnet):
+                                  args.qnet, args.mirror):
                 print(json.dumps(row), flush=True)
 
 
@@ -349,6 +356,9 @@ def main():
                    help="framework part: the DispNet's test-time flip (two passes per frame)")
     p.add_argument("--qnet", default=None,
                    help="framework and eval parts: this Q-net file instead of the shipped one")
+    p.add_argument("--mirror", action="store_true",
+                   help="framework and eval parts: each Q-net also flies the mirrored view "
+                        "(evaluate --mirror): two Q-net passes per step")
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.child:
@@ -365,6 +375,8 @@ def main():
         cmd += ["--depth-model", args.depth_model]
     if args.flip_tta:
         cmd += ["--flip-tta"]
+    if args.mirror:
+        cmd += ["--mirror"]
     if args.qnet:
         if not Path(args.qnet).is_file():
             p.error(f"--qnet: expected a Q-net .npz file; got {args.qnet!r} (not a file)")
