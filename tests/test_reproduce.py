@@ -56,9 +56,16 @@ def test_reproduce_distilled_smoke(tmp_path):
     assert [r["scenario"] for r in res["students"]] == ["basic", "basic"]
     assert all(r["depth"] == "pred" for r in res["students"])
     assert res["teacher"]["depth"] == "gt" and res["teacher"]["spec"].count("+") == 3
+    # the two students together, each with its mirror image: one row per world
+    [both] = res["together"]
+    assert both["mirror"] and both["depth"] == "pred" and both["scenario"] == "basic"
+    assert both["spec"] == "+".join(str(agents / f"stage2_student_s{k}" / "model.npz")
+                                    for k in (0, 1))
+    assert "--mirror" in both["command"]
     saved = json.loads((agents / "results.json").read_text())
-    assert saved["students"] == res["students"]
-    assert "target" in (agents / "results.md").read_text()
+    assert saved["students"] == res["students"] and saved["together"] == res["together"]
+    table = (agents / "results.md").read_text()
+    assert "target" in table and "the 2 students together" in table
     first = _weights(agents)
     # one process after the other: the same runs
     serial = reproduce_distilled(out=tmp_path / "b", students=2, tables="5", skip_depth=True,
@@ -94,6 +101,7 @@ def test_reproduce_distilled_short_smoke(tmp_path):
     assert res["recipe"] == "distil-short" and res["budget"]["steps"] == 120_000
     assert res["teacher"]["spec"].count("+") == 1 and "parent_wide_s1" in res["teacher"]["spec"]
     assert "the two wide parents" in (agents / "results.md").read_text()
+    assert "together" not in res            # one student: nothing to fly together
     val = res["validation"]
     assert [v["world_set"] for v in val] == ["validation"] * 2
     assert all("--validation" in v["command"] and v["flights"] == 4 for v in val)

@@ -291,9 +291,11 @@ def _train_all(tasks: list, workers: int) -> list:
 
 
 def _evaluate_cli(spec: str, scenario: str, budget: dict, seed: int, depth: str,
-                  depth_model, workers: int, validation: bool = False) -> dict:
+                  depth_model, workers: int, validation: bool = False,
+                  mirror: bool = False) -> dict:
     """``python -m minid3rqn evaluate SPEC`` as on the command line; returns its record.
-    ``validation``: ``budget["val_flights"]`` flights in the validation worlds."""
+    ``validation``: ``budget["val_flights"]`` flights in the validation worlds;
+    ``mirror``: each Q-net also flies the mirrored view (``--mirror``)."""
     from .commands import _estimator_for, add_arguments_evaluate, evaluate_one
     p = argparse.ArgumentParser()
     add_arguments_evaluate(p)
@@ -302,6 +304,8 @@ def _evaluate_cli(spec: str, scenario: str, budget: dict, seed: int, depth: str,
             "--seed", str(12345 + seed), "--depth", depth, "--workers", str(workers)]
     if validation:
         argv += ["--validation"]
+    if mirror:
+        argv += ["--mirror"]
     if depth == "pred":
         argv += ["--depth-model", str(depth_model)]
     args = p.parse_args(argv)
@@ -338,7 +342,8 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     instead of two), stage 1 (``stage1=False``: none; stage 2 starts from the wide parent,
     its LSTM grown to 256 units as stage 1 would grow it), then ``students`` students of
     stage 2 (seeds ``seed``, ``seed`` + 1, ...), each flown on predicted depth in ``basic`` (and the
-    transfer worlds), and the teacher on GT depth in ``basic``. Stage 1 grows a wide
+    transfer worlds), two or more students also together, each with its mirror image
+    (``evaluate A+B --mirror``; ours), and the teacher on GT depth in ``basic``. Stage 1 grows a wide
     parent: ``start="first"`` the seed-``seed`` one (every run in docs/results.md until
     the twenty-seventh session), ``"best"`` the one with the higher success on GT depth
     over ``budget["val_flights"]`` flights in the validation worlds (never the test
@@ -395,6 +400,11 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
         for sc in scenarios:
             results["students"].append(_evaluate_cli(str(student), sc, budget, seed, "pred",
                                                      depth_models[sc], workers))
+    if len(trained) > 1:     # ours: the chain's students flown together, with mirror images
+        together = "+".join(str(m) for m in trained)
+        results["together"] = [_evaluate_cli(together, sc, budget, seed, "pred",
+                                             depth_models[sc], workers, mirror=True)
+                               for sc in scenarios]
     results["teacher"] = _evaluate_cli(teacher, "basic", budget, seed, "gt", None, workers)
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
     agents.mkdir(parents=True, exist_ok=True)
@@ -420,6 +430,12 @@ def distilled_table(results: dict) -> str:
     for r in results["students"]:
         target = 0.95 if r["scenario"] == "basic" else 0.90
         lines.append(f"| {r['spec']} | {r['scenario']} | {r['rate']:.3f} | "
+                     f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | {target:.2f} |")
+    for r in results.get("together", []):       # an ensemble: n nets, 2n Q-net passes
+        n = r["spec"].count("+") + 1
+        target = 0.95 if r["scenario"] == "basic" else 0.90
+        lines.append(f"| the {n} students together, each with its mirror image (ours: "
+                     f"{2 * n} Q-net passes per step) | {r['scenario']} | {r['rate']:.3f} | "
                      f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | {target:.2f} |")
     t = results["teacher"]
     lines.append(f"| teacher ({parents}), GT depth | basic | {t['rate']:.3f} | "
