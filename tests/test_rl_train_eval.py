@@ -464,9 +464,18 @@ def test_recorded_result_picks_the_largest_matching_evaluation(tmp_path):
             {"scenario": "basic", "depth": "pred", "flights": 2000, "seed": 1, "rate": 0.7,
              "ci95": [0.6, 0.8]},
             {"scenario": "basic", "depth": "gt", "flights": 4000, "seed": 1, "rate": 0.9,
-             "ci95": [0.8, 1.0]}]
+             "ci95": [0.8, 1.0]},
+            {"scenario": "basic", "depth": "pred", "flights": 4000, "seed": 1, "rate": 0.8,
+             "ci95": [0.7, 0.9], "mirror": True},
+            {"scenario": "basic", "depth": "pred", "flights": 2000, "seed": 1, "rate": 0.85,
+             "ci95": [0.8, 0.9], "mirror": True, "flip_tta": True}]
     model.with_suffix(".json").write_text(json.dumps({"evaluations": rows}))
+    # a plain flight is never shown a result flown with the mirror image or the flip
     assert commands.recorded_result(model, "basic", "pred")["rate"] == 0.7
+    assert commands.recorded_result(model, "basic", "pred", mirror=True)["rate"] == 0.8
+    assert commands.recorded_result(model, "basic", "pred", mirror=True,
+                                    flip_tta=True)["rate"] == 0.85
+    assert commands.recorded_result(model, "basic", "pred", flip_tta=True) is None
     assert commands.recorded_result(model, "corners", "pred") is None
     assert commands.recorded_result(tmp_path / "none.npz", "basic", "gt") is None
 

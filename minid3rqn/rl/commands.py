@@ -600,24 +600,29 @@ def run_fly(args) -> int:
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
           f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}) on {depth} depth; GIF: "
           f"{out['gif']}", file=sys.stderr)
-    recorded = recorded_result(model, args.scenario, depth)
+    recorded = recorded_result(model, args.scenario, depth, mirror=args.mirror,
+                               flip_tta=depth == "pred" and args.flip_tta)
     if recorded:
         print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
               f"result here: {recorded['rate']:.3f} [{recorded['ci95'][0]:.3f}, "
               f"{recorded['ci95'][1]:.3f}] over {recorded['flights']} flights (seed "
               f"{recorded['seed']}; {Path(model).with_suffix('.json').name} beside it, "
-              f"docs/results.md)", file=sys.stderr)
+              f"docs/results.md, docs/experiments.md)", file=sys.stderr)
     return 0
 
 
-def recorded_result(model, scenario: str, depth: str) -> dict | None:
+def recorded_result(model, scenario: str, depth: str, mirror: bool = False,
+                    flip_tta: bool = False) -> dict | None:
     """The largest evaluation of ``scenario`` on ``depth`` depth recorded in the JSON beside
-    a model file (``evaluations``: what the shipped models' commands measured), if any."""
+    a model file (``evaluations``: what the shipped models' commands measured), if any,
+    flown as asked: with the mirror image (``mirror``) and the DispNet's test-time flip
+    (``flip_tta``) or without; a row without those keys was flown without them."""
     path = Path(model).with_suffix(".json")
     if not path.is_file():
         return None
     rows = [r for r in json.loads(path.read_text()).get("evaluations", [])
-            if r.get("scenario") == scenario and r.get("depth") == depth]
+            if r.get("scenario") == scenario and r.get("depth") == depth
+            and r.get("mirror", False) == mirror and r.get("flip_tta", False) == flip_tta]
     return max(rows, key=lambda r: r["flights"]) if rows else None
 
 
