@@ -427,16 +427,15 @@ def distilled_table(results: dict) -> str:
     lines = [f"The distilled D3RQN (ours, {results.get('recipe', 'distil')}), predicted depth; "
              f"the teacher on GT depth in basic",
              "", "| model | scenario | ours | 95% CI | target |", "|---|---|---|---|---|"]
-    for r in results["students"]:
+    def row(label, r):                          # a student's row, against the target
         target = 0.95 if r["scenario"] == "basic" else 0.90
-        lines.append(f"| {r['spec']} | {r['scenario']} | {r['rate']:.3f} | "
-                     f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | {target:.2f} |")
+        return (f"| {label} | {r['scenario']} | {r['rate']:.3f} | "
+                f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | {target:.2f} |")
+    lines += [row(r["spec"], r) for r in results["students"]]
     for r in results.get("together", []):       # an ensemble: n nets, 2n Q-net passes
         n = r["spec"].count("+") + 1
-        target = 0.95 if r["scenario"] == "basic" else 0.90
-        lines.append(f"| the {n} students together, each with its mirror image (ours: "
-                     f"{2 * n} Q-net passes per step) | {r['scenario']} | {r['rate']:.3f} | "
-                     f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | {target:.2f} |")
+        lines.append(row(f"the {n} students together, each with its mirror image (ours: "
+                         f"{2 * n} Q-net passes per step)", r))
     t = results["teacher"]
     lines.append(f"| teacher ({parents}), GT depth | basic | {t['rate']:.3f} | "
                  f"[{t['ci_low']:.3f}, {t['ci_high']:.3f}] | |")
