@@ -427,7 +427,7 @@ def distilled_table(results: dict) -> str:
     lines = [f"The distilled D3RQN (ours, {results.get('recipe', 'distil')}), predicted depth; "
              f"the teacher on GT depth in basic",
              "", "| model | scenario | ours | 95% CI | target |", "|---|---|---|---|---|"]
-    def row(label, r):                          # a student's row, against the target
+    def row(label, r):                          # a row on predicted depth, against the target
         target = 0.95 if r["scenario"] == "basic" else 0.90
         return (f"| {label} | {r['scenario']} | {r['rate']:.3f} | "
                 f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | {target:.2f} |")
