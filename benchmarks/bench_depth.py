@@ -17,6 +17,11 @@ Measured (medians over ``--repeat`` runs after 3 warm-ups, float32, 32x104):
   ``infer_fps_ours_autograd``: the same through ``DispNet.forward`` under ``no_grad``
   (what ``predict`` ran before). ``infer_ms_b1``: one frame (batch 1, the flight loop).
   The script checks that the two paths agree (1e-4 relative) before timing.
+- ``cost_volume_ms``: the plane-sweep cost volume (``depth/cost_volume.py``, 12 depths)
+  of one frame against the one before, per frame on a batch of 64; and
+  ``infer_fps_ours_cost12``: frames per second of a DispNet that reads it
+  (``DepthEstimator.predict`` with ``prev`` and ``motion``: the cost volume, then the
+  DispNet with 3 + 12 input channels), on the same batch.
 
 For each thread count the script re-runs itself in a child process with
 OMP_NUM_THREADS / OPENBLAS_NUM_THREADS / MKL_NUM_THREADS set before NumPy loads, and
@@ -87,6 +92,23 @@ def _child(threads: int, repeat: int) -> dict:
     def ours_infer_flip():
         flip_est.predict_disp(frames_u8)
 
+    # A DispNet with a 12-plane cost volume (train-depth --cost-volume 12): the cost
+    # volume of each frame against a copy shifted by a pixel, with a forward step.
+    from minid3rqn.depth.cost_volume import plane_sweep_cost
+    from minid3rqn.nets.dispnet import DispNet
+    cv_disp = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales, rng=0, cost_planes=12)
+    cv_est = DepthEstimator(cv_disp, 1.0, {"height": h, "width": w, "K": K.tolist()})
+    prev_u8 = np.roll(frames_u8, 1, axis=2)
+    step = np.tile(np.eye(4), (64, 1, 1))
+    step[:, 2, 3] = -0.8                         # T_{t->t-1}: the camera was 0.8 m back
+    cv_est.predict_disp(frames_u8, prev=prev_u8, motion=step)
+
+    def ours_cost_volume():
+        plane_sweep_cost(frames_u8, prev_u8, step, K)
+
+    def ours_infer_cost():
+        cv_est.predict_disp(frames_u8, prev=prev_u8, motion=step)
+
     def ours_infer_b1_autograd():
         with ag.no_grad():
             disp(frames[:1], scales=1)
@@ -113,6 +135,8 @@ def _child(threads: int, repeat: int) -> dict:
     result["infer_fps_ours_autograd"] = 64 / (_median_ms(ours_infer_autograd, repeat)
                                               / 1000)
     result["infer_fps_ours_flip"] = 64 / (_median_ms(ours_infer_flip, repeat) / 1000)
+    result["cost_volume_ms"] = _median_ms(ours_cost_volume, repeat) / 64
+    result["infer_fps_ours_cost12"] = 64 / (_median_ms(ours_infer_cost, repeat) / 1000)
     result["infer_ms_b1_ours"] = _median_ms(ours_infer_b1, 20 * repeat)
     result["infer_ms_b1_ours_autograd"] = _median_ms(ours_infer_b1_autograd, 20 * repeat)
     result["train_iter_ms_ours"] = _median_ms(ours_iter, repeat)

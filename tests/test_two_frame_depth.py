@@ -97,7 +97,8 @@ def test_flights_hand_a_two_frame_model_the_frame_before(monkeypatch):
     seen = []
     real = est.predict
 
-    def spy(rgb, batch_size=64, prev=None):
+    def spy(rgb, batch_size=64, prev=None, motion=None):
+        assert motion is None                       # motion is for a cost volume
         seen.append((rgb.copy(), prev.copy()))
         return real(rgb, batch_size, prev)
 

@@ -256,6 +256,11 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
                    help="ours: a two-frame DispNet, which also reads the frame before (the "
                         "motion between them); --init-from a one-frame model starts it "
                         "where that model is (docs/depth.md section 7)")
+    p.add_argument("--cost-volume", type=int, default=0, metavar="D",
+                   help="ours: the DispNet also reads a plane-sweep cost volume of D depths "
+                        "built from the frame before and the known motion (depth/"
+                        "cost_volume.py); --init-from a model without one starts it where "
+                        "that model is. 0 (default): none")
     p.add_argument("--no-edge-aware", action="store_true")
     p.add_argument("--no-min-reprojection", action="store_true")
     p.add_argument("--no-automask", action="store_true")
@@ -305,7 +310,7 @@ def config_from_args(args):
                        init_disp=args.init_disp, pose_rot_scale=args.pose_rot_scale,
                        pose_init_forward=init, loss=loss,
                        source_offsets=_offsets(args.source_offsets),
-                       prev_frame=args.prev_frame)
+                       prev_frame=args.prev_frame, cost_volume=args.cost_volume)
 
 
 class _LearningCurve:
@@ -332,7 +337,8 @@ class _LearningCurve:
             return
         if self.rows and self.rows[-1]["iteration"] >= it:
             return
-        r = evaluate(DepthEstimator(trainer.disp), self.test, posenet=trainer.pose)
+        est = DepthEstimator(trainer.disp, meta={"K": trainer.seq.K.tolist()})
+        r = evaluate(est, self.test, posenet=trainer.pose)
         self.rows.append({"iteration": it, "loss": row["loss"], "photo": row["photo"],
                           **{k: r[k] for k in self.COLUMNS[3:]}})
         text = ",".join(self.COLUMNS) + "\n" + "".join(
@@ -380,10 +386,10 @@ def run_train_depth(args) -> int:
     curve = _LearningCurve(paths["dir"], test, args.eval_every)
     trainer.run(progress=not args.quiet, callback=curve)
     t_train = time.time() - t1
-    estimator = DepthEstimator(trainer.disp, trainer.speed_scale())
+    estimator = DepthEstimator(trainer.disp, trainer.speed_scale(), {"K": train.K.tolist()})
     results = evaluate(estimator, test, posenet=trainer.pose)
     meta = {"command": _command_line(args, "train-depth"), "seed": args.seed, "scenario": args.scenario,
-            "horizon_row": camera.cy,
+            "horizon_row": camera.cy, "K": train.K.tolist(),
             "config": cfg.to_dict(), "results": results,
             "train_frames": len(train), "test_frames": len(test),
             "train_seconds": round(t_train, 1), "data_seconds": round(t_data, 1),

@@ -69,6 +69,13 @@ class DepthEstimator:
         self.height = self.meta.get("height", 32)
         self.width = self.meta.get("width", 104)
         self.in_frames = getattr(dispnet, "in_frames", 1)   # 2: also reads the previous frame
+        self.cost_planes = getattr(dispnet, "cost_planes", 0)  # D: a plane-sweep cost volume
+
+    @property
+    def needs_previous(self) -> bool:
+        """Whether ``predict`` needs the frames filmed one step before (``prev``): a
+        two-frame DispNet, or one with a cost volume (which also needs ``motion``)."""
+        return self.in_frames == 2 or self.cost_planes > 0
 
     @property
     def horizon_row(self) -> float:
@@ -78,8 +85,9 @@ class DepthEstimator:
 
     # -- files -----------------------------------------------------------------------
     def save(self, path, extra: dict | None = None) -> Path:
+        kept = {"K": self.meta["K"]} if "K" in self.meta else {}   # a cost volume's camera
         meta = {"dispnet": self.net.config(), "scale": self.scale,
-                "height": self.height, "width": self.width, **(extra or {})}
+                "height": self.height, "width": self.width, **kept, **(extra or {})}
         self.meta = meta
         state = {k: v.astype(np.float32) for k, v in self.net.state_dict().items()}
         return save_npz(path, state, meta)
@@ -99,10 +107,11 @@ class DepthEstimator:
             from .train import TrainConfig
             cfg = TrainConfig.from_dict(meta["config"])
             net = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales,
-                          in_frames=2 if cfg.prev_frame else 1)
+                          in_frames=2 if cfg.prev_frame else 1,
+                          cost_planes=cfg.cost_volume)
             net.load_state_dict({k[5:]: v for k, v in arrays.items() if k.startswith("disp.")})
             # With the known-speed term the network's depth is already in metres.
-            kept = {k: meta[k] for k in ("iteration", "horizon_row") if k in meta}
+            kept = {k: meta[k] for k in ("iteration", "horizon_row", "K") if k in meta}
             return cls(net, 1.0, kept)
         if not meta or "dispnet" not in meta:
             raise ValueError(f"DepthEstimator.load: {str(path)!r} is not a depth model file "
@@ -110,7 +119,7 @@ class DepthEstimator:
         c = meta["dispnet"]
         net = DispNet(tuple(c["encoder"]), tuple(c["decoder"]), c["n_scales"],
                       c["disp_scale"], c["min_disp"], c.get("double_conv", True),
-                      in_frames=c.get("in_frames", 1))
+                      in_frames=c.get("in_frames", 1), cost_planes=c.get("cost_planes", 0))
         net.load_state_dict(arrays)
         return cls(net, meta.get("scale", 1.0), meta)
 
@@ -139,24 +148,53 @@ class DepthEstimator:
             raise TypeError(f"DepthEstimator: rgb must be uint8 (0..255); got {rgb.dtype}")
         return rgb, single
 
-    def _input(self, rgb, prev) -> tuple[np.ndarray, bool]:
-        """The network's channels-last input: the checked frames, and with a two-frame
-        DispNet the previous frames after them on channels (N, H, W, 6)."""
+    def _input(self, rgb, prev, motion=None) -> tuple[np.ndarray, bool]:
+        """The network's channels-last input: the checked frames; with a two-frame
+        DispNet the previous frames after them on channels (N, H, W, 6); with a cost
+        volume, the frames as floats in [0, 1] and the D cost planes after them
+        (N, H, W, 3 + D)."""
         rgb, single = self._frames(rgb)
-        if self.in_frames == 1:
-            if prev is not None:
-                raise ValueError("DepthEstimator: this model reads one frame; prev (the "
-                                 "previous frames) is for a two-frame model (train-depth "
-                                 "--prev-frame)")
+        if not self.needs_previous:
+            if prev is not None or motion is not None:
+                raise ValueError("DepthEstimator: this model reads one frame; prev and "
+                                 "motion (the previous frames and the motion since) are for "
+                                 "a two-frame model (train-depth --prev-frame) or one with a "
+                                 "cost volume (--cost-volume)")
             return rgb, single
+        kind = ("reads two frames (train-depth --prev-frame)" if self.in_frames == 2 else
+                "reads a cost volume (train-depth --cost-volume)")
         if prev is None:
-            raise ValueError("DepthEstimator: this model reads two frames (train-depth "
-                             "--prev-frame): give prev, the frames filmed one step before rgb")
+            raise ValueError(f"DepthEstimator: this model {kind}: give prev, the frames "
+                             f"filmed one step before rgb")
         prev, _ = self._frames(prev)
         if prev.shape != rgb.shape:
             raise ValueError(f"DepthEstimator: prev must have rgb's shape {rgb.shape}; got "
                              f"{prev.shape}")
-        return np.concatenate([rgb, prev], axis=-1), single
+        x = np.concatenate([rgb, prev], axis=-1) if self.in_frames == 2 else rgb
+        if not self.cost_planes:
+            if motion is not None:
+                raise ValueError("DepthEstimator: motion is for a model with a cost volume "
+                                 "(train-depth --cost-volume); this one reads prev only")
+            return x, single
+        if motion is None:
+            raise ValueError(f"DepthEstimator: this model {kind}: give motion, T_{{t->t-1}} "
+                             f"(N, 4, 4), e.g. world.geometry.relative_transform(pose, "
+                             f"previous pose)")
+        motion = np.asarray(motion, dtype=np.float64)
+        if motion.ndim == 2:
+            motion = motion[None]
+        from .cost_volume import plane_sweep_cost, sweep_depths
+        cost = plane_sweep_cost(rgb, prev, motion, self.K, sweep_depths(self.cost_planes))
+        return np.concatenate([x * np.float32(1 / 255.0), cost], axis=-1), single
+
+    @property
+    def K(self) -> np.ndarray:
+        """The intrinsics of the frames the model was trained on, from its file (``K``):
+        the cost volume warps with them."""
+        if "K" in self.meta:
+            return np.asarray(self.meta["K"], dtype=np.float64)
+        raise ValueError("DepthEstimator: this model file has no intrinsics 'K' in its "
+                         "metadata, which its cost volume needs; train-depth writes them")
 
     def sequence_targets(self, seq: Sequence, idx=None, with_previous: bool = False
                          ) -> np.ndarray:
@@ -164,34 +202,51 @@ class DepthEstimator:
         them, or for a two-frame model (or with ``with_previous``, to score a one-frame
         model on the same frames) those with a previous frame in their flight."""
         idx = np.arange(len(seq)) if idx is None else np.asarray(idx)
-        if self.in_frames == 1 and not with_previous:
+        if not self.needs_previous and not with_previous:
             return idx
         return idx[(idx > 0) & (seq.flight[np.maximum(idx - 1, 0)] == seq.flight[idx])]
 
     def predict_sequence(self, seq: Sequence, idx) -> np.ndarray:
         """Depth (N, H, W) of the frames ``idx`` of ``seq`` (each with its previous frame,
-        for a two-frame model: ``sequence_targets`` lists the frames that have one)."""
+        for a two-frame or cost-volume model: ``sequence_targets`` lists the frames that
+        have one; a cost volume also takes the motion between them from ``seq.pose``,
+        the odometry of the flight)."""
         idx = np.asarray(idx)
-        if self.in_frames == 1:
+        if not self.needs_previous:
             return self.predict(seq.rgb[idx])
         ok = self.sequence_targets(seq, idx)
         if len(ok) != len(idx):
-            raise ValueError("DepthEstimator.predict_sequence: a two-frame model needs the "
-                             "previous frame of each frame in its flight; pick the frames "
-                             "with sequence_targets")
-        return self.predict(seq.rgb[idx], prev=seq.rgb[idx - 1])
+            raise ValueError("DepthEstimator.predict_sequence: a two-frame or cost-volume "
+                             "model needs the previous frame of each frame in its flight; "
+                             "pick the frames with sequence_targets")
+        return self.predict(seq.rgb[idx], prev=seq.rgb[idx - 1],
+                            motion=self.sequence_motion(seq, idx))
 
-    def predict_disp(self, rgb, batch_size: int = 64, prev=None) -> np.ndarray:
+    def sequence_motion(self, seq: Sequence, idx) -> np.ndarray | None:
+        """T_{t->t-1} (N, 4, 4) of the frames ``idx`` of ``seq`` for a cost-volume model
+        (None for others): the relative transform of the poses filmed."""
+        if not self.cost_planes:
+            return None
+        if seq.pose is None:
+            raise ValueError("DepthEstimator: a cost-volume model needs the motion between "
+                             "frames; this sequence has no poses")
+        from ..world.geometry import relative_transform
+        idx = np.asarray(idx)
+        return relative_transform(seq.pose[idx], seq.pose[idx - 1])
+
+    def predict_disp(self, rgb, batch_size: int = 64, prev=None, motion=None) -> np.ndarray:
         """rgb uint8 (N, H, W, 3) or (H, W, 3) -> network disparity (N, H, W) float32.
 
         Equal (to float32 round-off) to ``predict_disp_autograd``, the autograd forward
         ``net(rgb as (N, 3, H, W) float32 / 255, scales=1)[0]``; computed by the
         graph-free ``DispNetInference``. ``batch_size`` is kept for compatibility (the
         inference path runs its own chunks). With ``flip``: the mean of that and its value
-        on the mirrored frames, mirrored back. ``prev``: the frames before ``rgb``, for a
-        two-frame model (and only for one).
+        on the mirrored frames, mirrored back (for a cost volume, mirroring its planes is
+        the same as building it from the mirrored frames and motion). ``prev``: the
+        frames before ``rgb``, for a two-frame or cost-volume model (and only for one);
+        ``motion``: T_{t->t-1} (N, 4, 4), for a cost-volume model.
         """
-        rgb, single = self._input(rgb, prev)
+        rgb, single = self._input(rgb, prev, motion)
         if self._fast is None:
             self._fast = self.net.inference()
         out = self._fast(rgb).astype(np.float32, copy=False)
@@ -200,22 +255,26 @@ class DepthEstimator:
             out = 0.5 * (out + mirrored[:, :, ::-1].astype(np.float32, copy=False))
         return out[0] if single else out
 
-    def predict_disp_autograd(self, rgb, batch_size: int = 64, prev=None) -> np.ndarray:
+    def predict_disp_autograd(self, rgb, batch_size: int = 64, prev=None, motion=None
+                              ) -> np.ndarray:
         """``predict_disp`` through the autograd forward (``DispNet.forward`` under
         ``no_grad``), as it was computed before the inference path: the reference for
         tests and benchmarks."""
-        rgb, single = self._input(rgb, prev)
+        rgb, single = self._input(rgb, prev, motion)
+        unit = 1 / 255.0 if rgb.dtype == np.uint8 else 1.0     # a cost-volume input: floats
         out = np.empty(rgb.shape[:3], dtype=np.float32)
         with ag.no_grad():
             for k in range(0, len(rgb), batch_size):
-                x = rgb[k:k + batch_size].transpose(0, 3, 1, 2).astype(np.float32) * (1 / 255.0)
+                x = rgb[k:k + batch_size].transpose(0, 3, 1, 2).astype(np.float32) * unit
                 out[k:k + batch_size] = self.net(x, scales=1)[0].data[:, 0]
         return out[0] if single else out
 
-    def predict(self, rgb, batch_size: int = 64, prev=None) -> np.ndarray:
+    def predict(self, rgb, batch_size: int = 64, prev=None, motion=None) -> np.ndarray:
         """rgb uint8 (N, H, W, 3) -> depth float32 (N, H, W) in metres (see class doc);
-        a two-frame model also needs ``prev``, the frames filmed one step before."""
-        return (self.scale / self.predict_disp(rgb, batch_size, prev)).astype(np.float32)
+        a two-frame model also needs ``prev``, the frames filmed one step before, and a
+        cost-volume model ``prev`` and ``motion``, T_{t->t-1} (N, 4, 4)."""
+        return (self.scale / self.predict_disp(rgb, batch_size, prev, motion)
+                ).astype(np.float32)
 
 
 # -- metrics -----------------------------------------------------------------------------
@@ -388,7 +447,7 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
     frame over those for the frame itself."""
     if seq.depth is None:
         raise ValueError("evaluate: the sequence has no GT depth")
-    two = getattr(estimator, "in_frames", 1) == 2
+    two = getattr(estimator, "needs_previous", False)
     idx = estimator.sequence_targets(seq, with_previous=with_previous) \
         if (two or with_previous) else np.arange(len(seq))
     if max_frames and len(idx) > max_frames:
@@ -399,10 +458,11 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
         pred, gt = pred[:, rows], gt[:, rows]
     out = {"frames": int(len(idx))}
     if two:     # how much the previous frame moves the prediction: the same frames with
-        still = estimator.predict(seq.rgb[idx], prev=seq.rgb[idx])   # no motion at all
+        still = estimator.predict(seq.rgb[idx], prev=seq.rgb[idx],   # no motion at all
+                                  motion=estimator.sequence_motion(seq, idx))
         full = pred if rows is None else estimator.predict_sequence(seq, idx)
         out["prev_frame_effect"] = float(np.mean(np.abs(np.log(full / still))))
-        w = estimator.net.enc_a[0].weight.data              # (out, 6, 3, 3): frame, prev
+        w = estimator.net.enc_a[0].weight.data    # (out, 3 + 3 or D, 3, 3): frame, the rest
         out["prev_kernel_ratio"] = float(np.linalg.norm(w[:, 3:]) / np.linalg.norm(w[:, :3]))
     out.update(depth_metrics(pred, gt))
     out.update({f"{k}_speed_scale": v for k, v in

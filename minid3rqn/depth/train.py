@@ -38,6 +38,7 @@ from ..nets.dispnet import DispNet
 from ..nets.posenet import PoseNet
 from ..world.geometry import relative_transform
 from .data import FRAME_DT, SPEED, Sequence
+from .cost_volume import plane_sweep_cost, sweep_depths
 from .geometry import matrix_to_pose_vec
 from .losses import LossConfig, view_synthesis_loss
 
@@ -66,6 +67,8 @@ class TrainConfig:
     gyro_yaw: bool = False          # warp with the gyro's yaw in place of PoseNet's
     source_offsets: tuple = (-1, 1)  # the sources of target t: frames t + o (SfMLearner: -1, 1)
     prev_frame: bool = False        # ours: the DispNet also reads frame t - 1 (two frames in)
+    cost_volume: int = 0            # ours: D > 0, it also reads a plane-sweep cost volume of
+                                    # D depths against frame t - 1 (depth/cost_volume.py)
     loss: LossConfig = field(default_factory=LossConfig)
 
     def to_dict(self) -> dict:
@@ -86,7 +89,7 @@ class TrainConfig:
 def build_nets(cfg: TrainConfig) -> tuple[DispNet, PoseNet]:
     rng = np.random.default_rng(cfg.seed)
     disp = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales, init_disp=cfg.init_disp, rng=rng,
-                   in_frames=2 if cfg.prev_frame else 1)
+                   in_frames=2 if cfg.prev_frame else 1, cost_planes=cfg.cost_volume)
     # T_{t->s} of a source o frames later moves the camera o steps forward: its
     # translation starts at tz = -o x pose_init_forward (+0.8 m for the previous frame).
     pose = PoseNet(n_sources=len(cfg.source_offsets), pose_scale=cfg.pose_scale,
@@ -126,9 +129,13 @@ class Trainer:
                              f"{sequence.step} m (speed x dt in its metadata); set "
                              f"LossConfig.step to the sequence's step")
         self.offsets = tuple(cfg.source_offsets)
-        if cfg.prev_frame and -1 not in self.offsets:
-            raise ValueError(f"Trainer: prev_frame (a two-frame DispNet) reads frame t - 1, "
-                             f"so the source offsets must include -1; got {list(self.offsets)}")
+        if (cfg.prev_frame or cfg.cost_volume) and -1 not in self.offsets:
+            raise ValueError(f"Trainer: prev_frame (a two-frame DispNet) and cost_volume read "
+                             f"frame t - 1, so the source offsets must include -1; got "
+                             f"{list(self.offsets)}")
+        if cfg.cost_volume and sequence.pose is None:
+            raise ValueError("Trainer: cost_volume needs the motion between frames (the "
+                             "odometry); this sequence has no poses")
         self.targets = sequence.target_indices(self.offsets)
         if len(self.targets) == 0:
             raise ValueError(f"Trainer: the sequence has no triplet (a target with its sources "
@@ -189,11 +196,23 @@ class Trainer:
         return self.cfg.lr * (0.1 if decay else 1.0)
 
     def disp_input(self, target: np.ndarray, sources) -> np.ndarray:
-        """What the DispNet reads: the target frames (B, 3, H, W), and with
-        ``prev_frame`` the frames before them too (B, 6, H, W)."""
-        if not self.cfg.prev_frame:
-            return target
-        return np.concatenate([target, sources[self.offsets.index(-1)]], axis=1)
+        """What the DispNet reads: the target frames (B, 3, H, W), with ``prev_frame``
+        the frames before them too (B, 6, H, W), and with ``cost_volume`` = D the cost
+        volume against the frames before them after that (B, 3 + D, H, W). The cost
+        volume's motion is the flight's (mirrored with a mirrored triplet): the
+        odometry a quadrotor has, as in the flights (``DepthEstimator.sequence_motion``)."""
+        prev = sources[self.offsets.index(-1)] if self.offsets and -1 in self.offsets else None
+        x = np.concatenate([target, prev], axis=1) if self.cfg.prev_frame else target
+        if not self.cfg.cost_volume:
+            return x
+        idx, flip = self._last
+        M = np.diag([-1.0, 1.0, 1.0, 1.0])
+        T = relative_transform(self.seq.pose[idx], self.seq.pose[idx - 1])
+        T = np.where(flip[:, None, None], M @ T @ M, T)
+        mirror = lambda rgb: np.where(flip[:, None, None, None], rgb[:, :, ::-1], rgb)
+        cost = plane_sweep_cost(mirror(self.seq.rgb[idx]), mirror(self.seq.rgb[idx - 1]), T,
+                                self.seq.K, sweep_depths(self.cfg.cost_volume))
+        return np.concatenate([x, cost.transpose(0, 3, 1, 2)], axis=1)
 
     def step(self) -> dict:
         target, sources, K = self.sample_batch()
@@ -268,7 +287,8 @@ class Trainer:
         arrays.update({f"opt.{k}": v for k, v in self.opt.state_dict().items()})
         meta = {"iteration": self.iteration, "config": self.cfg.to_dict(),
                 "rng": _jsonable(self.rng.bit_generator.state), "history": self.history,
-                "horizon_row": float(self.seq.K[1, 2])}      # the camera of the frames
+                "horizon_row": float(self.seq.K[1, 2]),      # the camera of the frames
+                "K": self.seq.K.tolist()}
         return save_npz(path, arrays, meta)
 
     def init_from(self, path) -> None:
@@ -289,14 +309,17 @@ class Trainer:
                                                      if "." in k}))
 
     def _widened(self, weights: dict) -> dict:
-        """A one-frame DispNet's weights for this run's two-frame DispNet: the first
-        conv's kernels of the previous frame's channels start at zero, so the network
-        starts out computing exactly what the one-frame network did, and learns from
-        there what the previous frame adds. Other weights: unchanged."""
+        """A one-frame DispNet's weights for this run's two-frame or cost-volume DispNet:
+        the first conv's kernels of the new channels (the previous frame's, the cost
+        planes) start at zero, so the network starts out computing exactly what the
+        one-frame network did, and learns from there what they add. Other weights:
+        unchanged."""
         first = weights.get("enc_a.0.weight")
-        if self.cfg.prev_frame and first is not None and first.shape[1] == 3:
+        extra = self.disp.in_channels - 3
+        if extra and first is not None and first.shape[1] == 3:
             weights = dict(weights)
-            weights["enc_a.0.weight"] = np.concatenate([first, np.zeros_like(first)], axis=1)
+            zeros = np.zeros(first.shape[:1] + (extra,) + first.shape[2:], first.dtype)
+            weights["enc_a.0.weight"] = np.concatenate([first, zeros], axis=1)
         return weights
 
     def load_checkpoint(self, path) -> None:
@@ -304,7 +327,8 @@ class Trainer:
         saved = TrainConfig.from_dict(meta["config"])
         for key in ("seed", "batch_size", "encoder", "decoder", "n_scales", "lr", "loss",
                     "init_disp", "pose_scale", "pose_head_gain", "pose_dof", "pose_init_forward",
-                    "pose_rot_scale", "gt_pose", "gyro_yaw", "gyro_noise", "prev_frame"):
+                    "pose_rot_scale", "gt_pose", "gyro_yaw", "gyro_noise", "prev_frame",
+                    "cost_volume"):
             if getattr(saved, key) != getattr(self.cfg, key):
                 raise ValueError(f"resume: the checkpoint {str(path)!r} was made with {key} = "
                                  f"{getattr(saved, key)!r}, this run asks {getattr(self.cfg, key)!r}")

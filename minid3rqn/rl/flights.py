@@ -38,6 +38,7 @@ import numpy as np
 
 from ..world import Camera, SceneBatch, make_scene, render_batch, sample_start_pose
 from ..world.distance import nearest_distance_batch
+from ..world.geometry import relative_transform
 from ..world.scenarios import DEFAULTS
 from ..world.kinematics import (ACTION_INTERVAL, ACTIONS, SAFE_DISTANCE, n_substeps,
                                 paper_reward, substep_poses)
@@ -195,6 +196,7 @@ class Flights:
         self.batch = None
         self.last_depth = None
         self.last_rgb = None
+        self.last_poses = None          # the poses last_rgb was filmed from
 
     # -- observing ------------------------------------------------------------------
     def observe(self, idx=None):
@@ -207,8 +209,14 @@ class Flights:
             depth = depth_only(sub, poses, self.camera)
         else:
             rgb, _ = render_batch(sub, poses, self.camera)
-            if getattr(self.estimator, "in_frames", 1) == 2:      # a two-frame DispNet
-                depth = self.estimator.predict(rgb, prev=self._previous_rgb(idx, sub))
+            if getattr(self.estimator, "needs_previous", False):
+                # A two-frame DispNet reads the frame before; a cost volume also the
+                # motion since (the odometry: the arc flown at the commanded speed and
+                # yaw rate, which in our world is exactly the change of pose).
+                prev, prev_poses = self._previous_view(idx, sub)
+                motion = (relative_transform(poses, prev_poses)
+                          if getattr(self.estimator, "cost_planes", 0) else None)
+                depth = self.estimator.predict(rgb, prev=prev, motion=motion)
             else:
                 depth = self.estimator.predict(rgb)
             depth = np.asarray(depth, dtype=np.float32) * self.cfg.depth_scale
@@ -216,16 +224,19 @@ class Flights:
             depth = (depth * np.exp(self.depth_error(len(idx)))).astype(np.float32)
         return depth, self.encode(depth), rgb
 
-    def _previous_rgb(self, idx, sub: SceneBatch) -> np.ndarray:
-        """The frames filmed one step before the current views of flights ``idx``, for a
-        two-frame DispNet (train-depth --prev-frame): the last frame each flight saw; at
-        an episode's start, the view from 0.8 m further back on its heading (the drone
-        was already flying straight at 2 m/s when the episode began)."""
+    def _previous_view(self, idx, sub: SceneBatch) -> tuple[np.ndarray, np.ndarray]:
+        """The frames filmed one step before the current views of flights ``idx``, and
+        the poses they were filmed from, for a two-frame or cost-volume DispNet
+        (train-depth --prev-frame, --cost-volume): the last frame each flight saw; at an
+        episode's start, the view from 0.8 m further back on its heading (the drone was
+        already flying straight at 2 m/s when the episode began)."""
         idx = np.asarray(idx)
         fresh = (self.t[idx] == 0) if self.last_rgb is not None else np.ones(len(idx), bool)
         prev = np.empty((len(idx),) + self.frame_shape + (3,), np.uint8)
+        prev_poses = np.empty((len(idx), 3))
         if (~fresh).any():
             prev[~fresh] = self.last_rgb[idx[~fresh]]
+            prev_poses[~fresh] = self.last_poses[idx[~fresh]]
         if fresh.any():
             back = self.poses[idx[fresh]].copy()
             step = float(self.actions[0, 0]) * ACTION_INTERVAL
@@ -233,7 +244,8 @@ class Flights:
             back[:, 1] -= step * np.sin(back[:, 2])
             part = sub if fresh.all() else sub.subset(np.flatnonzero(fresh))
             prev[fresh], _ = render_batch(part, back, self.camera)
-        return prev
+            prev_poses[fresh] = back
+        return prev, prev_poses
 
     def depth_error(self, m: int) -> np.ndarray:
         """A smooth random error in log depth for ``m`` frames, (m, H, W) (ours; a
@@ -276,7 +288,9 @@ class Flights:
         if rgb is not None:
             if self.last_rgb is None:
                 self.last_rgb = np.zeros((self.n,) + self.frame_shape + (3,), np.uint8)
+                self.last_poses = np.zeros((self.n, 3))
             self.last_rgb[idx] = rgb
+            self.last_poses[idx] = self.poses[idx]
 
     def _new_episodes(self, idx):
         for k in idx:
