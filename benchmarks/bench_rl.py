@@ -194,11 +194,15 @@ class _TimedEstimator:
 
     def __init__(self, est):
         self.est, self.seconds = est, 0.0
-        self.in_frames = getattr(est, "in_frames", 1)    # 2: Flights hands it prev frames
+        # What Flights asks before it calls predict: whether to hand it the frames before
+        # (a two-frame or cost-volume DispNet) and the motion since (a cost volume).
+        self.needs_previous = getattr(est, "needs_previous", False)
+        self.cost_planes = getattr(est, "cost_planes", 0)
 
-    def predict(self, rgb, prev=None):
+    def predict(self, rgb, prev=None, motion=None):
         t = time.perf_counter()
-        out = self.est.predict(rgb) if prev is None else self.est.predict(rgb, prev=prev)
+        out = (self.est.predict(rgb) if prev is None else
+               self.est.predict(rgb, prev=prev, motion=motion))
         self.seconds += time.perf_counter() - t
         return out
 
