@@ -26,6 +26,8 @@ import numpy as np
 from .. import autograd as ag
 from ..io import load_npz, save_npz
 from ..nets.dispnet import DispNet
+from ..world.geometry import relative_transform
+from .cost_volume import plane_sweep_cost, sweep_depths
 from .data import Sequence
 from .geometry import pose_vec_to_mat
 
@@ -183,7 +185,6 @@ class DepthEstimator:
         motion = np.asarray(motion, dtype=np.float64)
         if motion.ndim == 2:
             motion = motion[None]
-        from .cost_volume import plane_sweep_cost, sweep_depths
         cost = plane_sweep_cost(rgb, prev, motion, self.K, sweep_depths(self.cost_planes))
         return np.concatenate([x * np.float32(1 / 255.0), cost], axis=-1), single
 
@@ -230,7 +231,6 @@ class DepthEstimator:
         if seq.pose is None:
             raise ValueError("DepthEstimator: a cost-volume model needs the motion between "
                              "frames; this sequence has no poses")
-        from ..world.geometry import relative_transform
         idx = np.asarray(idx)
         return relative_transform(seq.pose[idx], seq.pose[idx - 1])
 
@@ -388,7 +388,6 @@ def log_error_parts(depth, estimate, clip=Q_NET_RANGE) -> dict:
 def pose_errors(posenet, seq: Sequence, max_triplets: int = 500) -> dict:
     """Translation (scale-aligned per snippet, metres) and rotation (degrees) errors of a
     PoseNet of the (previous, next) sources."""
-    from ..world.geometry import relative_transform
     if seq.pose is None:
         raise ValueError("pose_errors: the sequence has no GT poses")
     if posenet.n_sources != 2:

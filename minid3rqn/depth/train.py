@@ -175,13 +175,15 @@ class Trainer:
         and the gyro's yaw."""
         if self.seq.pose is None:
             raise ValueError("train-depth: gt_pose needs a sequence with GT poses")
-        M = np.diag([-1.0, 1.0, 1.0, 1.0])
-        out = []
-        for offset in self.offsets:
-            T = relative_transform(self.seq.pose[idx], self.seq.pose[idx + offset])
-            T = np.where(flip[:, None, None], M @ T @ M, T)
-            out.append(matrix_to_pose_vec(T))
+        out = [matrix_to_pose_vec(self.motion(idx, offset, flip)) for offset in self.offsets]
         return np.stack(out, 1).astype(np.float32)
+
+    def motion(self, idx, offset: int, flip) -> np.ndarray:
+        """T_{t->t+offset} (B, 4, 4) of targets ``idx`` from the flights' poses, mirrored
+        where the triplet was flipped (M T M with M = diag(-1, 1, 1, 1))."""
+        M = np.diag([-1.0, 1.0, 1.0, 1.0])
+        T = relative_transform(self.seq.pose[idx], self.seq.pose[idx + offset])
+        return np.where(np.asarray(flip)[:, None, None], M @ T @ M, T)
 
     def gyro_yaws(self, idx, flip) -> np.ndarray:
         """The yaw between each target and its sources as a rate gyro reports it: the true
@@ -206,12 +208,10 @@ class Trainer:
         if not self.cfg.cost_volume:
             return x
         idx, flip = self._last
-        M = np.diag([-1.0, 1.0, 1.0, 1.0])
-        T = relative_transform(self.seq.pose[idx], self.seq.pose[idx - 1])
-        T = np.where(flip[:, None, None], M @ T @ M, T)
         mirror = lambda rgb: np.where(flip[:, None, None, None], rgb[:, :, ::-1], rgb)
-        cost = plane_sweep_cost(mirror(self.seq.rgb[idx]), mirror(self.seq.rgb[idx - 1]), T,
-                                self.seq.K, sweep_depths(self.cfg.cost_volume))
+        cost = plane_sweep_cost(mirror(self.seq.rgb[idx]), mirror(self.seq.rgb[idx - 1]),
+                                self.motion(idx, -1, flip), self.seq.K,
+                                sweep_depths(self.cfg.cost_volume))
         return np.concatenate([x, cost.transpose(0, 3, 1, 2)], axis=1)
 
     def step(self) -> dict:
