@@ -388,3 +388,27 @@ def test_base_teachers_need_a_mixed_pool_and_teachers(tmp_path):
                          "--out", str(tmp_path / "cli")])
     with pytest.raises(SystemExit, match="--base-teachers.*not a file"):
         commands.run_train_agent(args)
+
+
+def test_window_length_and_batch_size_are_settable_and_checked(tmp_path, monkeypatch):
+    """``--seq-len`` and ``--batch-size`` reach the replay's sampler; bad values are named."""
+    d = Distiller(small_config(seq_len=9, batch_size=3, total_steps=64), tmp_path, progress=False)
+    seen = []
+    sample = d.replay.sample
+    monkeypatch.setattr(d.replay, "sample",
+                        lambda *a, **k: seen.append(a) or sample(*a, **k))
+    d.run()
+    assert d.agent.updates > 0 and seen and all(a[:2] == (3, 9) for a in seen)
+    for name, flag in (("seq_len", "--seq-len"), ("batch_size", "--batch-size")):
+        for bad in (0, -1, 2.5, True):
+            with pytest.raises(ValueError, match=f"{name}.*{flag}.*got"):
+                Distiller(small_config(**{name: bad}), tmp_path / "bad", progress=False)
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_agent(p)
+    for flag in ("--seq-len", "--batch-size"):
+        args = p.parse_args(["--smoke", flag, "0", "--out", str(tmp_path / "cli")])
+        with pytest.raises(SystemExit, match=f"{flag}.*0"):
+            commands.config_from_args(args)
+    args = p.parse_args(["--smoke", "--seq-len", "10", "--batch-size", "16"])
+    cfg = commands.config_from_args(args)
+    assert (cfg.seq_len, cfg.batch_size) == (10, 16)

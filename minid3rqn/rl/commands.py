@@ -191,6 +191,8 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
                    help="frames per observation (default 1; 5 = the window as channels)")
     p.add_argument("--seq-len", type=int, default=None,
                    help="replay window (default 5 for recurrent variants, 1 otherwise)")
+    p.add_argument("--batch-size", type=int, default=d.batch_size,
+                   help="replay windows per update (paper: 32)")
     p.add_argument("--scenario", default=d.scenario)
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--steps", type=int, default=d.total_steps, help="environment transitions")
@@ -273,8 +275,9 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
 def config_from_args(args):
     from .train import TrainConfig
     recurrent = args.variant in ("ddrqn", "d3rqn")
-    seq_len = args.seq_len or (5 if recurrent else 1)
+    seq_len = args.seq_len if args.seq_len is not None else (5 if recurrent else 1)
     cfg = TrainConfig(variant=args.variant, stack=args.stack or 1, seq_len=seq_len,
+                      batch_size=args.batch_size,
                       scenario=args.scenario, seed=args.seed, n_envs=args.n_envs,
                       total_steps=args.steps, learning_starts=args.learning_starts,
                       updates_per_step=args.updates_per_step, eps_decay_steps=args.eps_decay,
@@ -304,6 +307,9 @@ def config_from_args(args):
         for k, v in SMOKE.items():
             setattr(cfg, k, v)
         cfg.flights = FlightsConfig(n_worlds=2)
+    for flag, value in (("--seq-len", cfg.seq_len), ("--batch-size", cfg.batch_size)):
+        if value < 1:
+            raise SystemExit(f"train-agent {flag}: expected an int >= 1; got {value}")
     if not 0 <= args.average_last <= cfg.total_steps:
         raise SystemExit(f"train-agent --average-last: expected a number of transitions in "
                          f"[0, --steps = {cfg.total_steps}]; got {args.average_last}")

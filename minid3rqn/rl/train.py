@@ -168,6 +168,10 @@ class Trainer:
             raise ValueError(f"Trainer: average_last (--average-last) is a number of "
                              f"transitions in [0, total_steps = {cfg.total_steps}]; got "
                              f"{cfg.average_last!r}")
+        for name, flag in (("seq_len", "--seq-len"), ("batch_size", "--batch-size")):
+            value = getattr(cfg, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"Trainer: {name} ({flag}) must be an int >= 1; got {value!r}")
         self.cfg = cfg
         self.out = Path(out_dir)
         self.out.mkdir(parents=True, exist_ok=True)
