@@ -113,15 +113,22 @@ def test_reproduce_distilled_short_smoke(tmp_path):
 
 def test_reproduce_distilled_without_stage1_smoke(tmp_path):
     """``stage1=False`` (``--skip-stage1``) with one wide parent (``--wide-parents 1``):
-    no stage 1 run; stage 2 starts from the parent itself, its LSTM grown."""
+    no stage 1 run; stage 2 starts from the parent itself, its LSTM grown. The students'
+    replay windows (``--student-seq-len 10 --student-batch-size 16``) reach the student's
+    command and only the student's: the parent keeps the paper's 5 x 32."""
     res = reproduce_distilled(out=tmp_path, students=1, tables="5", skip_depth=True,
                               budget={"smoke": True, "flights": 4}, short=True,
-                              wide_parents=1, stage1=False)
+                              wide_parents=1, stage1=False, student_seq_len=10,
+                              student_batch_size=16)
     agents = tmp_path / "distil"
     assert sorted(p.name for p in agents.iterdir() if p.is_dir()) == [
         "parent_wide_s0", "stage2_student_s0"]
     student = load_npz(agents / "stage2_student_s0" / "model.npz")[1]["command"]
     assert f"--init-model {agents / 'parent_wide_s0' / 'model.npz'} --init-widen" in student
+    assert "--seq-len 10 --batch-size 16" in student, student
+    parent = load_npz(agents / "parent_wide_s0" / "model.npz")[1]["command"]
+    assert "--seq-len" not in parent and "--batch-size" not in parent, parent
+    assert (res["student_seq_len"], res["student_batch_size"]) == (10, 16)
     assert "--teachers " + str(agents / "parent_wide_s0" / "model.npz") in student
     assert res["stage1"] is False and "+" not in res["teacher"]["spec"]
     table = (agents / "results.md").read_text()
@@ -162,6 +169,10 @@ def test_reproduce_students_error():
         reproduce_distilled(out=Path("unused"), students=0)
     with pytest.raises(ValueError, match="start must be 'first' or 'best'; got 'last'"):
         reproduce_distilled(out=Path("unused"), start="last")
+    with pytest.raises(ValueError, match="student_seq_len must be an integer >= 1; got 0"):
+        reproduce_distilled(out=Path("unused"), student_seq_len=0)
+    with pytest.raises(ValueError, match="student_batch_size must be an integer >= 1; got 2.5"):
+        reproduce_distilled(out=Path("unused"), student_batch_size=2.5)
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -174,6 +185,12 @@ def test_reproduce_students_error():
     (["--start", "best"], "--start best: only for --recipe distil"),
     (["--wide-parents", "4"], "--wide-parents 4: only for --recipe distil"),
     (["--skip-stage1"], "--skip-stage1: only for --recipe distil"),
+    (["--student-seq-len", "10"], "--student-seq-len 10: only for --recipe distil"),
+    (["--student-batch-size", "16"], "--student-batch-size 16: only for --recipe distil"),
+    (["--recipe", "distil-short", "--student-seq-len", "0"],
+     "--student-seq-len: expected an integer >= 1; got 0"),
+    (["--recipe", "distil-short", "--student-batch-size", "-1"],
+     "--student-batch-size: expected an integer >= 1; got -1"),
     (["--recipe", "distil-short", "--wide-parents", "0"],
      "--wide-parents: expected a number of parents >= 1; got 0"),
     (["--recipe", "distil-short", "--parent-steps", "5000"],

@@ -673,6 +673,14 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
                         "first (seed --seed, as run until now) or best (the higher success "
                         "on GT depth over 500 flights, 100 with --quick, in the validation "
                         "worlds)")
+    p.add_argument("--student-seq-len", type=int, default=5, metavar="L",
+                   help="--recipe distil or distil-short: the students' replay windows, L "
+                        "steps each (train-agent --seq-len; default the paper's 5)")
+    p.add_argument("--student-batch-size", type=int, default=32, metavar="B",
+                   help="--recipe distil or distil-short: the students' replay windows per "
+                        "update (train-agent --batch-size; default the paper's 32); "
+                        "--student-seq-len 10 --student-batch-size 16 keeps the frames per "
+                        "update (docs/experiments.md, 'Longer replay windows')")
 
 
 def run_reproduce(args) -> int:
@@ -694,6 +702,13 @@ def run_reproduce(args) -> int:
     if args.wide_parents < 1:
         raise SystemExit(f"reproduce --wide-parents: expected a number of parents >= 1; got "
                          f"{args.wide_parents}")
+    for flag, value, paper in (("--student-seq-len", args.student_seq_len, 5),
+                               ("--student-batch-size", args.student_batch_size, 32)):
+        if value < 1:
+            raise SystemExit(f"reproduce {flag}: expected an integer >= 1; got {value}")
+        if value != paper and args.recipe == "paper":
+            raise SystemExit(f"reproduce {flag} {value}: only for --recipe distil and "
+                             f"distil-short")
     if args.parent_steps is not None:
         from .reproduce import FULL, QUICK
         starts = (QUICK if args.quick else FULL)["learning_starts"]
@@ -713,7 +728,9 @@ def run_reproduce(args) -> int:
                             tables=args.table, workers=args.workers,
                             short=args.recipe == "distil-short",
                             parent_steps=args.parent_steps, start=args.start,
-                            wide_parents=args.wide_parents, stage1=not args.skip_stage1)
+                            wide_parents=args.wide_parents, stage1=not args.skip_stage1,
+                            student_seq_len=args.student_seq_len,
+                            student_batch_size=args.student_batch_size)
         return 0
     if args.students != 1:
         raise SystemExit(f"reproduce --students {args.students}: only for --recipe distil "

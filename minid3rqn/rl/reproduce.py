@@ -334,7 +334,8 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
                         skip_depth: bool = False, tables: str = "both", workers: int = 1,
                         budget: dict | None = None, short: bool = False,
                         parent_steps: int | None = None, start: str = "first",
-                        wide_parents: int = 2, stage1: bool = True) -> dict:
+                        wide_parents: int = 2, stage1: bool = True,
+                        student_seq_len: int = 5, student_batch_size: int = 32) -> dict:
     """The distilled D3RQN end to end: the basic DispNet (and, for Table 6, the transfer
     ones) as in ``reproduce``, the four GT parents (``short``: the two wide ones at
     ``SHORT``'s budget; ``parent_steps``: that many transitions each, epsilon over
@@ -349,9 +350,16 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     over ``budget["val_flights"]`` flights in the validation worlds (never the test
     worlds; a tie keeps the first). ``workers`` > 1 trains the parents (and the students)
     that many at a time, one process per core, and flies the evaluations' chunks
-    likewise. Everything lands in ``out/distil`` (results.json, results.md)."""
+    likewise. ``student_seq_len`` and ``student_batch_size``: the stage-2 students' replay
+    windows (``train-agent --seq-len --batch-size``; both presets: the paper's 5 and 32).
+    Everything lands in ``out/distil`` (results.json, results.md)."""
     if students < 1:
         raise ValueError(f"reproduce_distilled: students must be >= 1; got {students}")
+    for name, value in (("student_seq_len", student_seq_len),
+                        ("student_batch_size", student_batch_size)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"reproduce_distilled: {name} must be an integer >= 1; got "
+                             f"{value!r}")
     if start not in ("first", "best"):
         raise ValueError(f"reproduce_distilled: start must be 'first' or 'best'; got {start!r}")
     kinds = parent_kinds(short, wide_parents)
@@ -362,7 +370,8 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     agents = out / "distil"
     recipe = "distil-short" if short else "distil"
     results = {"recipe": recipe, "budget": budget, "seed": seed, "students": [],
-               "wide_parents": wide_parents, "started": time.strftime("%Y-%m-%d %H:%M:%S")}
+               "wide_parents": wide_parents, "student_seq_len": student_seq_len,
+               "student_batch_size": student_batch_size, "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     parents = _train_all([     # the shipped D3RQN's 240k recipe (short: SHORT's), GT depth
         (["--variant", "d3rqn", "--seed", str(seed + offset), "--steps", str(budget["steps"]),
           "--learning-starts", str(budget["learning_starts"]),
@@ -389,12 +398,15 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
             agents / "stage1_gt", budget))]
     else:                    # stage 2 grows the parent's LSTM itself
         init = [str(start_from), "--init-widen"]
+    windows = []             # the students' replay windows, when not the paper's 5 x 32
+    if (student_seq_len, student_batch_size) != (5, 32):
+        windows = ["--seq-len", str(student_seq_len), "--batch-size", str(student_batch_size)]
     trained = _train_all([
         (["--variant", "d3rqn", "--seed", str(seed + k), "--steps", str(budget["stage2_steps"]),
           "--learning-starts", starts, "--depth", "pred",
           "--depth-model", str(depth_models["basic"]), "--init-model", *init,
           *STUDENT, "--teachers", teacher,
-          "--teacher-mix-steps", str(budget["stage2_steps"] // 2), *STAGE2],
+          "--teacher-mix-steps", str(budget["stage2_steps"] // 2), *STAGE2, *windows],
          agents / f"stage2_student_s{seed + k}", budget) for k in range(students)], workers)
     for student in trained:
         for sc in scenarios:
