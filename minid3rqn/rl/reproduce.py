@@ -371,7 +371,8 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
     recipe = "distil-short" if short else "distil"
     results = {"recipe": recipe, "budget": budget, "seed": seed, "students": [],
                "wide_parents": wide_parents, "student_seq_len": student_seq_len,
-               "student_batch_size": student_batch_size, "started": time.strftime("%Y-%m-%d %H:%M:%S")}
+               "student_batch_size": student_batch_size,
+               "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     parents = _train_all([     # the shipped D3RQN's 240k recipe (short: SHORT's), GT depth
         (["--variant", "d3rqn", "--seed", str(seed + offset), "--steps", str(budget["steps"]),
           "--learning-starts", str(budget["learning_starts"]),
@@ -398,7 +399,8 @@ def reproduce_distilled(out: Path, quick: bool = False, seed: int = 0, students:
             agents / "stage1_gt", budget))]
     else:                    # stage 2 grows the parent's LSTM itself
         init = [str(start_from), "--init-widen"]
-    windows = []             # the students' replay windows, when not the paper's 5 x 32
+    windows = []             # the students' replay windows, named only when not the
+                             # paper's 5 x 32 (earlier runs' commands stay as recorded)
     if (student_seq_len, student_batch_size) != (5, 32):
         windows = ["--seq-len", str(student_seq_len), "--batch-size", str(student_batch_size)]
     trained = _train_all([
