@@ -29,7 +29,16 @@ array the size of the DispNet's largest layer for 8 frames.
 
     python benchmarks/bench_dispnet_chunk.py --elu
 
-Output: one JSON line per chunk (or per ELU variant), then one with the machine's caches.
+``--layers`` (thirty-seventh session) times each convolution of the DispNet (chunks of
+8, as shipped) and reports its ms per frame and the GFLOP/s its GEMMs reach, beside the
+ceiling (a 1024^3 float32 ``np.matmul`` on the same thread), then the time in the bias +
+ELU and in everything else (the copies between layers, the sigmoid). It answers how much
+faster the DispNet, which is most of an evaluation on predicted depth, could still get.
+
+    python benchmarks/bench_dispnet_chunk.py --layers
+
+Output: one JSON line per chunk (or per ELU variant, or per convolution), then one with
+the machine's caches.
 """
 from __future__ import annotations
 
@@ -37,6 +46,7 @@ import argparse
 import json
 import os
 import sys
+import time
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")          # before NumPy loads (one core per process)
@@ -48,7 +58,7 @@ sys.path.insert(0, ROOT)
 
 from bench_depth import _median_ms  # noqa: E402  (this folder is on sys.path)
 from minid3rqn.depth.evaluate import DepthEstimator  # noqa: E402
-from minid3rqn.nets import dispnet  # noqa: E402
+from minid3rqn.nets import dispnet, layers  # noqa: E402
 from minid3rqn.world import Camera, SceneBatch, make_scene, render_batch, sample_start_pose  # noqa: E402
 
 MODEL = os.path.join(ROOT, "minid3rqn", "models", "depth_basic.npz")
@@ -121,6 +131,70 @@ def bench_elu(est: DepthEstimator, rgb: np.ndarray, repeat: int) -> None:
                           "ns_per_element": round(1e6 * ms / x.size, 2)}), flush=True)
 
 
+def bench_layers(est: DepthEstimator, rgb: np.ndarray, repeat: int) -> None:
+    """Print, per convolution of the DispNet (chunks of 8), its ms per frame and GFLOP/s;
+    then the bias + ELU, the rest, and the GEMM ceiling (see the module docstring).
+
+    Each bound convolution and the in-place bias + ELU are wrapped with a timer; the
+    wrappers cost a few microseconds per call, so the total is a little above an
+    unwrapped run's (also printed)."""
+    plain = est.net.inference(chunk=8)
+    plain_ms = _median_ms(lambda: plain(rgb), repeat)
+    timers: dict = {}                       # conv index -> [seconds, calls, flops per call]
+    elu = [0.0]
+    bind, shipped = layers.ConvInference.bind, dispnet.bias_elu_
+
+    def timed_bind(self, xp, out, work):
+        run = bind(self, xp, out, work)
+        kh, kw = self.kernel
+        flops = 2 * out.size * xp.shape[3] * kh * kw      # out is (n, OH, OW, O)
+        entry = timers.setdefault(len(timers), [0.0, 0, flops, xp.shape[1:], out.shape[1:],
+                                                (kh, kw), self.stride])
+
+        def timed():
+            t = time.perf_counter()
+            run()
+            entry[0] += time.perf_counter() - t
+            entry[1] += 1
+        return timed
+
+    def timed_elu(*args):
+        t = time.perf_counter()
+        y = shipped(*args)
+        elu[0] += time.perf_counter() - t
+        return y
+
+    try:
+        layers.ConvInference.bind, dispnet.bias_elu_ = timed_bind, timed_elu
+        fast = est.net.inference(chunk=8)
+        for _ in range(3):                  # warm-up: builds the workspace, binds
+            fast(rgb)
+        for entry in timers.values():
+            entry[0], entry[1] = 0.0, 0
+        elu[0] = 0.0
+        t = time.perf_counter()
+        for _ in range(repeat):
+            fast(rgb)
+        total = time.perf_counter() - t
+    finally:
+        layers.ConvInference.bind, dispnet.bias_elu_ = bind, shipped
+    frames = repeat * len(rgb)
+    for k, (sec, calls, flops, xin, yout, kern, stride) in timers.items():
+        print(json.dumps({"conv": k, "in_hwc": list(xin), "out_hwc": list(yout),
+                          "kernel": list(kern), "stride": list(stride),
+                          "ms_per_frame": round(1000 * sec / frames, 4),
+                          "gflops": round(flops * calls / sec / 1e9, 1)}), flush=True)
+    conv = sum(e[0] for e in timers.values())
+    a = np.random.default_rng(0).random((1024, 1024), dtype=np.float32)
+    gemm_ms = _median_ms(lambda: a @ a, repeat)
+    print(json.dumps({"ms_per_frame": {"total (timed)": round(1000 * total / frames, 3),
+                                       "total (untimed run)": round(plain_ms / len(rgb), 3),
+                                       "convolutions": round(1000 * conv / frames, 3),
+                                       "bias + ELU": round(1000 * elu[0] / frames, 3),
+                                       "rest": round(1000 * (total - conv - elu[0]) / frames, 3)},
+                      "gemm_ceiling_gflops": round(2 * 1024 ** 3 / gemm_ms / 1e6, 1)}), flush=True)
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--chunks", default="1,2,4,8,16,32,64",
@@ -129,6 +203,8 @@ def main() -> int:
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--elu", action="store_true",
                    help="time the ELU variants and expm1 against exp instead of the chunks")
+    p.add_argument("--layers", action="store_true",
+                   help="time each convolution (ms per frame, GFLOP/s) instead of the chunks")
     args = p.parse_args()
     try:
         chunks = [int(c) for c in args.chunks.split(",")]
@@ -139,8 +215,8 @@ def main() -> int:
 
     est = DepthEstimator.load(MODEL)
     rgb = rendered_frames(args.frames)
-    if args.elu:
-        bench_elu(est, rgb, args.repeat)
+    if args.elu or args.layers:
+        (bench_elu if args.elu else bench_layers)(est, rgb, args.repeat)
         print(json.dumps({"caches": caches(), "threads": os.environ.get("OMP_NUM_THREADS")}))
         return 0
     reference = est.net.inference(chunk=8)(rgb)
