@@ -140,7 +140,7 @@ def bench_layers(est: DepthEstimator, rgb: np.ndarray, repeat: int) -> None:
     unwrapped run's (also printed)."""
     plain = est.net.inference(chunk=8)
     plain_ms = _median_ms(lambda: plain(rgb), repeat)
-    timers: dict = {}                       # conv index -> [seconds, calls, flops per call]
+    timers: dict = {}       # conv index -> [seconds, calls, flops per call, in, out, kernel, stride]
     elu = [0.0]
     bind, shipped = layers.ConvInference.bind, dispnet.bias_elu_
 
@@ -201,10 +201,11 @@ def main() -> int:
                    help="comma-separated chunk sizes to time")
     p.add_argument("--frames", type=int, default=512, help="frames per timed call")
     p.add_argument("--repeat", type=int, default=5)
-    p.add_argument("--elu", action="store_true",
-                   help="time the ELU variants and expm1 against exp instead of the chunks")
-    p.add_argument("--layers", action="store_true",
-                   help="time each convolution (ms per frame, GFLOP/s) instead of the chunks")
+    what = p.add_mutually_exclusive_group()
+    what.add_argument("--elu", action="store_true",
+                      help="time the ELU variants and expm1 against exp instead of the chunks")
+    what.add_argument("--layers", action="store_true",
+                      help="time each convolution (ms per frame, GFLOP/s) instead of the chunks")
     args = p.parse_args()
     try:
         chunks = [int(c) for c in args.chunks.split(",")]
