@@ -31,8 +31,9 @@ array the size of the DispNet's largest layer for 8 frames.
 
 ``--layers`` (thirty-seventh session) times each convolution of the DispNet (chunks of
 8, as shipped) and reports its ms per frame and the GFLOP/s its GEMMs reach, beside the
-ceiling (a 1024^3 float32 ``np.matmul`` on the same thread), then the time in the bias +
-ELU and in everything else (the copies between layers, the sigmoid). It answers how much
+ceiling (``bench_autograd``'s 1024^3 float32 ``np.matmul``, best of ``--repeat``, same
+thread), then the time in the bias + ELU and in everything else (the copies between
+layers, the sigmoid). It answers how much
 faster the DispNet, which is most of an evaluation on predicted depth, could still get.
 
     python benchmarks/bench_dispnet_chunk.py --layers
@@ -56,7 +57,8 @@ import numpy as np  # noqa: E402
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from bench_depth import _median_ms  # noqa: E402  (this folder is on sys.path)
+from bench_autograd import bench_gemm  # noqa: E402  (this folder is on sys.path)
+from bench_depth import _median_ms  # noqa: E402
 from minid3rqn.depth.evaluate import DepthEstimator  # noqa: E402
 from minid3rqn.nets import dispnet, layers  # noqa: E402
 from minid3rqn.world import Camera, SceneBatch, make_scene, render_batch, sample_start_pose  # noqa: E402
@@ -185,14 +187,13 @@ def bench_layers(est: DepthEstimator, rgb: np.ndarray, repeat: int) -> None:
                           "ms_per_frame": round(1000 * sec / frames, 4),
                           "gflops": round(flops * calls / sec / 1e9, 1)}), flush=True)
     conv = sum(e[0] for e in timers.values())
-    a = np.random.default_rng(0).random((1024, 1024), dtype=np.float32)
-    gemm_ms = _median_ms(lambda: a @ a, repeat)
     print(json.dumps({"ms_per_frame": {"total (timed)": round(1000 * total / frames, 3),
                                        "total (untimed run)": round(plain_ms / len(rgb), 3),
                                        "convolutions": round(1000 * conv / frames, 3),
                                        "bias + ELU": round(1000 * elu[0] / frames, 3),
                                        "rest": round(1000 * (total - conv - elu[0]) / frames, 3)},
-                      "gemm_ceiling_gflops": round(2 * 1024 ** 3 / gemm_ms / 1e6, 1)}), flush=True)
+                      "gemm_ceiling_gflops": round(bench_gemm(repeat, None, np)["gflops"], 1)}),
+          flush=True)
 
 
 def main() -> int:
