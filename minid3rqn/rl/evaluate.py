@@ -11,6 +11,24 @@ Wilson score interval for k successes in n trials (z = 1.96 for 95%)::
 
 Unlike p +- z sqrt(p(1-p)/n) it stays inside [0, 1] and is not zero-width at 0 or 1
 (0 successes in 2000 flights still allows a rate up to 0.0019).
+
+**Flights share worlds.** The Wilson interval treats the n flights as independent trials.
+They are not quite: 2000 test flights fly in 128 worlds (4 chunks of 500 flights, each
+with a pool of 32 scenes), about 16 flights per world, and a world with a hard spot
+fails several of its flights. So each evaluation also gives an interval *by world*
+(``clustered_interval``), the one to read when the question is "how well does this
+policy fly this scenario's worlds", not "these 2000 flights". With y_c successes in the
+m_c flights of world c (C worlds, n = sum m_c, p = sum y_c / n), the variance of p as the
+mean of a sample of worlds (the ratio estimator of cluster sampling) is
+
+    var_w = C / (C - 1) * sum_c (y_c - p m_c)^2 / n^2
+
+and the *design effect* deff = var_w / (p (1 - p) / n) says how many times the
+independent-flights variance it is. The interval is Wilson's with the effective number
+of flights n / deff in place of n (Korn and Graubard, 1998), deff taken as at least 1: we
+never claim more precision than independent flights give. With one flight per world it
+is Wilson's interval (up to C / (C - 1)); with every world all-success or all-failure it
+is Wilson's over the C worlds.
 """
 from __future__ import annotations
 
@@ -19,12 +37,23 @@ import multiprocessing as mp
 import time
 import warnings
 from contextlib import nullcontext
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from .flights import Flights, FlightsConfig
 from .policies import Policy
+
+
+def _wilson(p: float, n: float, z: float) -> tuple[float, float]:
+    """Wilson's interval for an observed proportion p over n (possibly effective,
+    non-integer) trials."""
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z / denom * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    lo = 0.0 if p == 0 else max(0.0, centre - half)     # exact ends (no rounding residue)
+    hi = 1.0 if p == 1 else min(1.0, centre + half)
+    return lo, hi
 
 
 def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -33,13 +62,40 @@ def wilson_interval(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
         raise ValueError(f"wilson_interval: n must be positive; got {n}")
     if not 0 <= k <= n:
         raise ValueError(f"wilson_interval: k must be in [0, n={n}]; got {k}")
-    p = k / n
-    denom = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z / denom * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    lo = 0.0 if k == 0 else max(0.0, centre - half)     # exact ends (no rounding residue)
-    hi = 1.0 if k == n else min(1.0, centre + half)
-    return lo, hi
+    return _wilson(k / n, n, z)
+
+
+def clustered_interval(world_successes, world_flights,
+                       z: float = 1.96) -> tuple[float, float, float]:
+    """95% interval of the success rate *by world*, and the design effect (module
+    docstring): ``world_successes`` and ``world_flights`` are the successes and flights
+    of each world, (C,) integers with 0 <= successes <= flights and C >= 2 worlds.
+    Returns (low, high, deff)."""
+    y = np.asarray(world_successes)
+    m = np.asarray(world_flights)
+    for name, a in (("world_successes", y), ("world_flights", m)):
+        if a.ndim != 1 or not np.issubdtype(a.dtype, np.integer):
+            raise ValueError(f"clustered_interval: {name} must be a 1-D array of integers "
+                             f"(one per world); got shape {a.shape}, dtype {a.dtype}")
+    if y.shape != m.shape:
+        raise ValueError(f"clustered_interval: world_successes and world_flights must have "
+                         f"one entry per world each; got {y.shape[0]} and {m.shape[0]}")
+    if len(m) < 2:
+        raise ValueError(f"clustered_interval: needs at least 2 worlds to measure how they "
+                         f"differ; got {len(m)}")
+    if (m < 1).any() or (y < 0).any() or (y > m).any():
+        raise ValueError("clustered_interval: every world needs world_flights >= 1 and "
+                         "0 <= world_successes <= world_flights; got flights "
+                         f"{m.min()}..{m.max()}, successes {y.min()}..{y.max()}, "
+                         f"{int((y > m).sum())} worlds with more successes than flights")
+    n = int(m.sum())
+    p = int(y.sum()) / n
+    if p in (0.0, 1.0):                 # every flight alike: nothing varies between worlds
+        return (*_wilson(p, n, z), 1.0)
+    c = len(m)
+    var_w = c / (c - 1) * float(((y - p * m) ** 2).sum()) / (n * n)
+    deff = var_w / (p * (1 - p) / n)
+    return (*_wilson(p, n / max(deff, 1.0), z), deff)
 
 
 @dataclass
@@ -56,12 +112,24 @@ class EvalResult:
     seconds: float
     seed: int
     world_set: str = "test"      # "validation": the model-selection range (Flights)
+    # By world (module docstring): the interval over the worlds flown, the design effect,
+    # and each world's successes and flights (what pools evaluations by world).
+    worlds: int = 0
+    ci_low_worlds: float = float("nan")
+    ci_high_worlds: float = float("nan")
+    design_effect: float = float("nan")
+    world_successes: list = field(default_factory=list)
+    world_flights: list = field(default_factory=list)
 
     def line(self) -> str:
         where = "" if self.world_set == "test" else ", validation worlds"
+        by_world = ""
+        if self.worlds >= 2:
+            by_world = (f"; by world [{self.ci_low_worlds:.3f}, {self.ci_high_worlds:.3f}], "
+                        f"{self.worlds} worlds, deff {self.design_effect:.2f}")
         return (f"{self.policy:<10} {self.scenario:<13} {self.rate:.3f} "
                 f"[{self.ci_low:.3f}, {self.ci_high:.3f}]  ({self.successes}/{self.flights}, "
-                f"mean steps {self.mean_steps:.1f}, {self.seconds:.0f} s{where})")
+                f"mean steps {self.mean_steps:.1f}, {self.seconds:.0f} s{where}{by_world})")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -105,8 +173,9 @@ def _chunk_seeds(seed: int, n_flights: int, chunk: int) -> list[tuple[int, int]]
 
 def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsConfig,
                depth: str, depth_estimator, max_steps: int,
-               flights_factory=Flights) -> np.ndarray:
-    """Steps survived by the ``n`` flights of one chunk (world seed ``child``)."""
+               flights_factory=Flights) -> tuple[np.ndarray, np.ndarray]:
+    """Steps survived by the ``n`` flights of one chunk (world seed ``child``), and the
+    world of its pool each flew in."""
     # A policy with a random generator (Random, an epsilon-greedy Q-net) draws from one
     # seeded by the chunk: a chunk's result is the same in any process, in any order.
     # (A duck-typed policy without ``reseed`` keeps its own generator.)
@@ -114,7 +183,8 @@ def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsCo
         policy.reseed((child, 0x5EED))
     flights = flights_factory(scenario, n, seed=child, config=cfg, depth=depth,
                               depth_estimator=depth_estimator, autoreset=False)
-    return run_flights(policy, flights, max_steps)
+    steps = run_flights(policy, flights, max_steps)
+    return steps, np.array(flights.world_of, dtype=np.int64)
 
 
 _FORKED = None       # what the chunks are flown with (set for the length of one evaluation,
@@ -173,14 +243,15 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     global _FORKED
     _FORKED = (policy, scenario, cfg, depth, depth_estimator, max_steps,
                flights_factory or Flights)
-    survived = []
+    survived, world = [], []
     try:
         with (mp.get_context("fork").Pool(workers) if workers > 1 else nullcontext()) as pool:
             # imap keeps the chunks' order, so the result is the one-process one
             runs = map(_fly_chunk_forked, tasks) if pool is None else \
                 pool.imap(_fly_chunk_forked, tasks)
-            for (n, _), steps in zip(tasks, runs):
+            for i, ((n, _), (steps, world_of)) in enumerate(zip(tasks, runs)):
                 survived.append(steps)
+                world.append(world_of + i * cfg.n_worlds)   # chunk i has its own pool
                 if bar is not None:
                     bar.update(n)
     finally:
@@ -188,10 +259,18 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     if bar is not None:
         bar.close()
     survived = np.concatenate(survived)
-    k = int((survived >= max_steps).sum())
+    success = survived >= max_steps
+    k = int(success.sum())
     lo, hi = wilson_interval(k, n_flights)
+    _, world = np.unique(np.concatenate(world), return_inverse=True)   # the worlds flown
+    m = np.bincount(world)
+    y = np.bincount(world, weights=success).astype(np.int64)
+    w_lo, w_hi, deff = (clustered_interval(y, m) if len(m) >= 2
+                        else (float("nan"), float("nan"), float("nan")))
     return EvalResult(policy.name, scenario, depth, n_flights, k, k / n_flights, lo, hi,
-                      float(survived.mean()), time.time() - t0, seed, world_set)
+                      float(survived.mean()), time.time() - t0, seed, world_set,
+                      len(m), w_lo, w_hi, deff, y.tolist(), m.tolist())
 
 
-__all__ = ["wilson_interval", "EvalResult", "run_flights", "evaluate_policy"]
+__all__ = ["wilson_interval", "clustered_interval", "EvalResult", "run_flights",
+           "evaluate_policy"]
