@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train-agent": ("minid3rqn.rl.commands", "train a Q-network (DDQN, D3QN, DDRQN, D3RQN)"),
     "evaluate": ("minid3rqn.rl.commands", "success rate over many flights, with a 95%% CI"),
     "reproduce": ("minid3rqn.rl.commands", "rerun Tables 5 and 6 end to end (--quick)"),
+    "pool": ("minid3rqn.rl.pool", "pool evaluate --json records by world; A against B"),
     # sensing (issue: unsupervised depth)
     "collect": ("minid3rqn.depth.commands", "fly a scripted pilot and save image sequences"),
     "train-depth": ("minid3rqn.depth.commands", "train DispNet + PoseNet by view synthesis"),

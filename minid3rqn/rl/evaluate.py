@@ -113,11 +113,13 @@ class EvalResult:
     seed: int
     world_set: str = "test"      # "validation": the model-selection range (Flights)
     # By world (module docstring): the interval over the worlds flown, the design effect,
-    # and each world's successes and flights (what pools evaluations by world).
+    # and each world's seed, successes and flights (what pools evaluations by world:
+    # ``pool``; with the scenario and its --scene the seed names the world).
     worlds: int = 0
     ci_low_worlds: float = float("nan")
     ci_high_worlds: float = float("nan")
     design_effect: float = float("nan")
+    world_seeds: list = field(default_factory=list)
     world_successes: list = field(default_factory=list)
     world_flights: list = field(default_factory=list)
 
@@ -175,7 +177,7 @@ def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsCo
                depth: str, depth_estimator, max_steps: int,
                flights_factory=Flights) -> tuple[np.ndarray, np.ndarray]:
     """Steps survived by the ``n`` flights of one chunk (world seed ``child``), and the
-    world of its pool each flew in."""
+    seed of the world each flew in (its identity: the same seed is the same world)."""
     # A policy with a random generator (Random, an epsilon-greedy Q-net) draws from one
     # seeded by the chunk: a chunk's result is the same in any process, in any order.
     # (A duck-typed policy without ``reseed`` keeps its own generator.)
@@ -184,7 +186,7 @@ def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsCo
     flights = flights_factory(scenario, n, seed=child, config=cfg, depth=depth,
                               depth_estimator=depth_estimator, autoreset=False)
     steps = run_flights(policy, flights, max_steps)
-    return steps, np.array(flights.world_of, dtype=np.int64)
+    return steps, np.asarray(flights.world_seeds, dtype=np.int64)[flights.world_of]
 
 
 _FORKED = None       # what the chunks are flown with (set for the length of one evaluation,
@@ -249,9 +251,9 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
             # imap keeps the chunks' order, so the result is the one-process one
             runs = map(_fly_chunk_forked, tasks) if pool is None else \
                 pool.imap(_fly_chunk_forked, tasks)
-            for i, ((n, _), (steps, world_of)) in enumerate(zip(tasks, runs)):
+            for (n, _), (steps, world_seed) in zip(tasks, runs):
                 survived.append(steps)
-                world.append(world_of + i * cfg.n_worlds)   # chunk i has its own pool
+                world.append(world_seed)
                 if bar is not None:
                     bar.update(n)
     finally:
@@ -262,14 +264,14 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     success = survived >= max_steps
     k = int(success.sum())
     lo, hi = wilson_interval(k, n_flights)
-    _, world = np.unique(np.concatenate(world), return_inverse=True)   # the worlds flown
+    seeds, world = np.unique(np.concatenate(world), return_inverse=True)   # worlds flown
     m = np.bincount(world)
     y = np.bincount(world, weights=success).astype(np.int64)
     w_lo, w_hi, deff = (clustered_interval(y, m) if len(m) >= 2
                         else (float("nan"), float("nan"), float("nan")))
     return EvalResult(policy.name, scenario, depth, n_flights, k, k / n_flights, lo, hi,
                       float(survived.mean()), time.time() - t0, seed, world_set,
-                      len(m), w_lo, w_hi, deff, y.tolist(), m.tolist())
+                      len(m), w_lo, w_hi, deff, seeds.tolist(), y.tolist(), m.tolist())
 
 
 __all__ = ["wilson_interval", "clustered_interval", "EvalResult", "run_flights",

@@ -1,10 +1,12 @@
 """The success rate's interval by world: flights that share a world are not independent
-trials (minid3rqn/rl/evaluate.py, module docstring)."""
+trials (minid3rqn/rl/evaluate.py, module docstring); pooling evaluations by world and
+pairing two policies on the same worlds (minid3rqn/rl/pool.py)."""
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
 from minid3rqn.rl.evaluate import clustered_interval, evaluate_policy, wilson_interval
+from minid3rqn.rl.pool import against_conditions, paired_difference, pool_records, read_records
 from minid3rqn.rl.policies import ReactivePolicy
 from minid3rqn.world import ACTIONS
 
@@ -91,3 +93,81 @@ def test_an_evaluation_reports_its_worlds():
                           max_steps=8, progress=False, workers=2)
     assert (two.world_successes, two.world_flights) == (one.world_successes, one.world_flights)
     assert one.to_dict()["design_effect"] == pytest.approx(two.design_effect)
+
+
+# -- pooling evaluate --json records (minid3rqn/rl/pool.py) --------------------------------
+def record(spec, seeds, successes, flights, scenario="intersections", seed=1, scene=None):
+    return {"spec": spec, "policy": spec, "scenario": scenario, "seed": seed, "scene": scene,
+            "world_seeds": list(seeds), "world_successes": list(successes),
+            "world_flights": list(flights), "rate": sum(successes) / max(sum(flights), 1),
+            "successes": sum(successes), "flights": sum(flights)}
+
+
+def test_nets_on_the_same_worlds_pool_per_world():
+    """Two nets flown on the same worlds: the worlds count once, with both nets' flights;
+    the same counts on different worlds make twice the worlds and a narrower interval."""
+    a = record("a", [10, 11, 12], [5, 9, 10], [10, 10, 10])
+    b = record("b", [10, 11, 12], [4, 9, 10], [10, 10, 10])
+    same = pool_records([a, b])
+    assert (same.worlds, same.flights, same.successes) == (3, 60, 47)
+    c = record("b", [20, 21, 22], [4, 9, 10], [10, 10, 10], seed=2)
+    apart = pool_records([a, c])
+    assert apart.worlds == 6 and apart.successes == same.successes
+    assert apart.ci_high_worlds - apart.ci_low_worlds < same.ci_high_worlds - same.ci_low_worlds
+    other_scene = record("b", [10, 11, 12], [4, 9, 10], [10, 10, 10], scene={"density": 2})
+    assert pool_records([a, other_scene]).worlds == 6      # --scene makes other worlds
+
+
+def test_paired_difference_removes_what_the_worlds_share():
+    """B fails one more flight than A in every world: the paired difference is exact (zero
+    width); A against itself is 0; unpaired worlds are refused with a named error."""
+    seeds, m = range(8), [10] * 8
+    ya = [10, 9, 3, 10, 6, 10, 8, 2]                  # worlds differ a lot
+    a = record("a", seeds, ya, m)
+    b = record("b", seeds, [y - 1 for y in ya], m)
+    d, lo, hi, c = paired_difference([a], [b])
+    assert c == 8 and d == pytest.approx(0.1) and hi - lo == pytest.approx(0.0, abs=1e-12)
+    assert paired_difference([a], [a])[:3] == pytest.approx((0.0, 0.0, 0.0))
+    apart = record("b", range(8, 16), ya, m)
+    with pytest.raises(ValueError, match="different worlds"):
+        paired_difference([a], [apart])
+
+
+def test_records_without_world_counts_and_bad_files_are_named(tmp_path):
+    old = record("old", [], [], [])
+    with pytest.raises(ValueError, match="no world counts"):
+        pool_records([old])
+    with pytest.raises(ValueError, match="no evaluation records"):
+        pool_records([])
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text('{"a": 1}\nnot json\n')
+    with pytest.raises(ValueError, match="line 2 is not a JSON record"):
+        read_records([bad])
+    with pytest.raises(FileNotFoundError, match="no such results file"):
+        read_records([tmp_path / "missing.jsonl"])
+
+
+def test_against_keeps_the_where_conditions_it_does_not_name():
+    assert against_conditions(["scenario=corners", "spec=runs/*"], ["spec=reactive"]) == \
+        ["scenario=corners", "spec=reactive"]
+
+
+def test_pool_command_end_to_end(tmp_path, capsys):
+    """evaluate --json, then pool: the pooled counts are the evaluations' own."""
+    from minid3rqn.cli import main
+    out = tmp_path / "r.jsonl"
+    for seed in ("1", "2"):
+        assert main(["evaluate", "reactive", "straight", "--scenario", "basic", "--flights",
+                     "12", "--chunk", "6", "--steps", "6", "--seed", seed, "--quiet",
+                     "--json", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["pool", str(out), "--where", "spec=reactive", "--against",
+                 "spec=straight"]) == 0
+    text = capsys.readouterr().out
+    rows = [r for r in read_records([out]) if r["spec"] == "reactive"]
+    k = sum(r["successes"] for r in rows)
+    assert f"({k}/24, 2 evaluations" in text and "paired by world" in text
+    with pytest.raises(SystemExit, match="expected KEY=VALUE"):
+        main(["pool", str(out), "--where", "spec"])
+    with pytest.raises(SystemExit, match="different worlds"):
+        main(["pool", str(out), "--where", "seed=1", "--against", "seed=2"])
