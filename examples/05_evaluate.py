@@ -1,4 +1,4 @@
-"""Success rates with 95% Wilson intervals: Straight, Random, Reactive and a Q-net.
+"""Success rates with 95% intervals: Straight, Random, Reactive and a Q-net.
 
 Every policy flies the same fresh test worlds (seeds disjoint from training), all
 flights of a chunk stepped together. The paper's protocol is 2000 flights of 50 steps:
@@ -7,6 +7,12 @@ flights of a chunk stepped together. The paper's protocol is 2000 flights of 50 
         minid3rqn/models/d3rqn_basic.npz --flights 2000
 
     python examples/05_evaluate.py [--smoke] [--flights N] [--model PATH]
+
+Each line gives two intervals. The first (Wilson's) counts the flights as independent
+trials. The flights share worlds, though (200 flights fly 32 here), and a world with a
+hard spot fails several at once; the second, "by world", allows for that, and "deff"
+says how many times the first interval's variance the true one is (docs/d3rqn.md,
+section 9). Read the second when you ask how well a policy flies this kind of world.
 """
 import argparse
 from pathlib import Path
