@@ -171,8 +171,12 @@ def test_groups_differ_tests_disjoint_world_sets():
     t = groups_differ([[a], [b], [c]])
     assert t["df"] == 2 and t["p_flight"] < 1e-6 and t["p_world"] < 0.05
     assert t["chi2_world"] <= t["chi2_flight"]       # by world never claims more
-    with pytest.raises(ValueError, match="same worlds"):
+    with pytest.raises(ValueError, match="share 8 of their worlds"):
         groups_differ([[a], [a]])
+    many = [10] * 40
+    d = record("a", range(100, 140), [9] + many[1:], many, seed=4)
+    e = record("a", range(139, 179), many[:39] + [9], many, seed=5)     # one world in both
+    assert groups_differ([[d], [e]])["shared_worlds"] == 1
     with pytest.raises(ValueError, match="at least 2 groups"):
         groups_differ([[a]])
 
