@@ -89,13 +89,21 @@ def clustered_interval(world_successes, world_flights,
                          f"{m.min()}..{m.max()}, successes {y.min()}..{y.max()}, "
                          f"{int((y > m).sum())} worlds with more successes than flights")
     n = int(m.sum())
-    p = int(y.sum()) / n
+    p, var_w = world_variance(y, m)
     if p in (0.0, 1.0):                 # every flight alike: nothing varies between worlds
         return (*_wilson(p, n, z), 1.0)
-    c = len(m)
-    var_w = c / (c - 1) * float(((y - p * m) ** 2).sum()) / (n * n)
     deff = var_w / (p * (1 - p) / n)
     return (*_wilson(p, n / max(deff, 1.0), z), deff)
+
+
+def world_variance(world_successes, world_flights) -> tuple[float, float]:
+    """The rate p = sum y_c / n and its variance as a mean over C >= 2 worlds,
+    var_w = C / (C - 1) sum_c (y_c - p m_c)^2 / n^2 (module docstring)."""
+    y = np.asarray(world_successes, dtype=np.float64)
+    m = np.asarray(world_flights, dtype=np.float64)
+    n, c = m.sum(), len(m)
+    p = float(y.sum() / n)
+    return p, c / (c - 1) * float(((y - p * m) ** 2).sum()) / (n * n)
 
 
 @dataclass
@@ -274,5 +282,5 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
                       len(m), w_lo, w_hi, deff, seeds.tolist(), y.tolist(), m.tolist())
 
 
-__all__ = ["wilson_interval", "clustered_interval", "EvalResult", "run_flights",
-           "evaluate_policy"]
+__all__ = ["wilson_interval", "clustered_interval", "world_variance", "EvalResult",
+           "run_flights", "evaluate_policy"]

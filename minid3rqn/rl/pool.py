@@ -54,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .evaluate import clustered_interval, wilson_interval
+from .evaluate import clustered_interval, wilson_interval, world_variance
 
 
 @dataclass
@@ -138,11 +138,11 @@ def chi2_sf(x: float, df: int) -> float:
 def _rate_and_variances(records: list[dict]) -> tuple[set, float, float, float]:
     """(world keys, rate, variance by flight, variance by world) of pooled ``records``."""
     counts = world_counts(records)
-    yc = np.array([c[0] for c in counts.values()], np.float64)
-    mc = np.array([c[1] for c in counts.values()], np.float64)
-    n, p, c = mc.sum(), yc.sum() / mc.sum(), len(mc)
-    var_flight = p * (1 - p) / n
-    var_world = c / (c - 1) * float(((yc - p * mc) ** 2).sum()) / (n * n) if c > 1 else np.nan
+    if len(counts) < 2:
+        raise ValueError("pool --split: every group needs at least 2 worlds")
+    yc, mc = np.array(list(counts.values())).T
+    p, var_world = world_variance(yc, mc)
+    var_flight = p * (1 - p) / mc.sum()
     return set(counts), p, var_flight, max(var_world, var_flight)
 
 
