@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from minid3rqn.rl.evaluate import clustered_interval, evaluate_policy, wilson_interval
+from minid3rqn.rl.evaluate import by_world, clustered_interval, evaluate_policy, wilson_interval
 from minid3rqn.rl.pool import (against_conditions, chi2_sf, groups_differ, paired_difference,
                                pool_records, read_records)
 from minid3rqn.rl.policies import ReactivePolicy
@@ -94,6 +94,37 @@ def test_an_evaluation_reports_its_worlds():
                           max_steps=8, progress=False, workers=2)
     assert (two.world_successes, two.world_flights) == (one.world_successes, one.world_flights)
     assert one.to_dict()["design_effect"] == pytest.approx(two.design_effect)
+
+
+def test_by_world_groups_flights_by_their_world():
+    """Flights grouped by world seed, in seed order; the interval is clustered_interval's
+    of the counts; one world gives no interval (NaN), and bad shapes are named."""
+    success = np.array([1, 0, 1, 1, 1, 0, 1], bool)
+    seeds = np.array([30, 10, 30, 20, 10, 10, 20])
+    w = by_world(success, seeds)
+    assert w.seeds.tolist() == [10, 20, 30]
+    assert w.flights.tolist() == [3, 2, 2] and w.successes.tolist() == [1, 2, 2]
+    assert (w.ci_low, w.ci_high, w.design_effect) == clustered_interval([1, 2, 2], [3, 2, 2])
+    one = by_world(success, np.full(7, 5))
+    assert one.flights.tolist() == [7] and np.isnan(one.ci_low)
+    with pytest.raises(ValueError, match="world_seed"):
+        by_world(success, seeds[:3])
+
+
+def test_the_tables_show_both_intervals():
+    """reproduce's tables give each row its interval by flight and by world; a record
+    written before the interval by world existed leaves that cell blank, not an error."""
+    from minid3rqn.rl.reproduce import markdown_tables
+    new = {"policy": "d3rqn", "scenario": "basic", "rate": 0.9, "ci_low": 0.88,
+           "ci_high": 0.92, "ci_low_worlds": 0.85, "ci_high_worlds": 0.94}
+    old = {k: v for k, v in new.items() if "worlds" not in k} | {"policy": "random"}
+    table = markdown_tables({"table5": [new, old]}).splitlines()
+    assert "by world" in table[table.index("| model | ours | 95% CI by flight | by world "
+                                           "| paper |")]
+    [row_new] = [r for r in table if r.startswith("| d3rqn")]
+    [row_old] = [r for r in table if r.startswith("| random")]
+    assert "[0.880, 0.920] | [0.850, 0.940]" in row_new
+    assert "[0.880, 0.920] |  |" in row_old
 
 
 # -- pooling evaluate --json records (minid3rqn/rl/pool.py) --------------------------------

@@ -287,6 +287,8 @@ def test_fly_main_job_smoke(tmp_path, capsys):
     assert gif.is_file() and gif.stat().st_size > 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["flights"] == 2 and 0 <= out["success_rate"] <= 1
+    assert 1 <= out["worlds"] <= 2                  # and by world when there are two
+    assert (out["ci95_by_world"] is None) == (out["worlds"] < 2)
     # an ensemble flies too (the shipped net twice), and a missing member is named
     args = p.parse_args(["--flights", "2", "--steps", "2", "--seed", "1", "--depth", "gt",
                          "--gif", str(gif), "--model", f"{SHIPPED}+{SHIPPED}"])

@@ -603,15 +603,18 @@ def run_fly(args) -> int:
     out = fly(nets, est, args.scenario, seed, args.flights, args.gif, args.steps,
               mirror=args.mirror, horizon_row=row, encoding=encoding_for("fly", None, nets))
     print(json.dumps(out))
+    by_world = "" if out["ci95_by_world"] is None else \
+        f"; by world {out['ci95_by_world'][0]:.2f}-{out['ci95_by_world'][1]:.2f}, " \
+        f"{out['worlds']} worlds"
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
-          f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}) on {depth} depth; GIF: "
-          f"{out['gif']}", file=sys.stderr)
+          f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}{by_world}) on {depth} depth; "
+          f"GIF: {out['gif']}", file=sys.stderr)
     recorded = recorded_result(model, args.scenario, depth, mirror=args.mirror,
                                flip_tta=depth == "pred" and args.flip_tta)
     if recorded:
         print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
               f"result here: {recorded['rate']:.3f} [{recorded['ci95'][0]:.3f}, "
-              f"{recorded['ci95'][1]:.3f}] over {recorded['flights']} flights (seed "
+              f"{recorded['ci95'][1]:.3f}] by flight over {recorded['flights']} flights (seed "
               f"{recorded['seed']}; {Path(model).with_suffix('.json').name} beside it, "
               f"docs/results.md, docs/experiments.md)", file=sys.stderr)
     return 0

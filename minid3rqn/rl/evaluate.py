@@ -145,6 +145,33 @@ class EvalResult:
         return asdict(self)
 
 
+@dataclass
+class ByWorld:
+    """Each world's successes and flights, and the interval by world (``by_world``)."""
+    seeds: np.ndarray          # (C,) the worlds flown, sorted
+    successes: np.ndarray      # (C,) successes in each
+    flights: np.ndarray        # (C,) flights in each
+    ci_low: float              # clustered_interval; NaN with fewer than 2 worlds
+    ci_high: float
+    design_effect: float
+
+
+def by_world(success, world_seed) -> ByWorld:
+    """Group flights by world: ``success`` (n,) bools, ``world_seed`` (n,) the seed of
+    the world each flight flew in (the same seed is the same world)."""
+    success = np.asarray(success, dtype=bool)
+    world_seed = np.asarray(world_seed)
+    if success.ndim != 1 or world_seed.shape != success.shape:
+        raise ValueError(f"by_world: success and world_seed must be (n,) arrays of one "
+                         f"length; got shapes {success.shape} and {world_seed.shape}")
+    seeds, world = np.unique(world_seed, return_inverse=True)
+    m = np.bincount(world, minlength=len(seeds))
+    y = np.bincount(world, weights=success, minlength=len(seeds)).astype(np.int64)
+    lo, hi, deff = (clustered_interval(y, m) if len(m) >= 2
+                    else (float("nan"), float("nan"), float("nan")))
+    return ByWorld(seeds, y, m, lo, hi, deff)
+
+
 def run_flights(policy: Policy, flights: Flights, max_steps: int, record=None) -> np.ndarray:
     """Fly every flight of ``flights`` once (from ``reset``), return steps survived (n,).
 
@@ -272,15 +299,12 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     success = survived >= max_steps
     k = int(success.sum())
     lo, hi = wilson_interval(k, n_flights)
-    seeds, world = np.unique(np.concatenate(world), return_inverse=True)   # worlds flown
-    m = np.bincount(world)
-    y = np.bincount(world, weights=success).astype(np.int64)
-    w_lo, w_hi, deff = (clustered_interval(y, m) if len(m) >= 2
-                        else (float("nan"), float("nan"), float("nan")))
+    w = by_world(success, np.concatenate(world))
     return EvalResult(policy.name, scenario, depth, n_flights, k, k / n_flights, lo, hi,
                       float(survived.mean()), time.time() - t0, seed, world_set,
-                      len(m), w_lo, w_hi, deff, seeds.tolist(), y.tolist(), m.tolist())
+                      len(w.flights), w.ci_low, w.ci_high, w.design_effect, w.seeds.tolist(),
+                      w.successes.tolist(), w.flights.tolist())
 
 
-__all__ = ["wilson_interval", "clustered_interval", "world_variance", "EvalResult",
-           "run_flights", "evaluate_policy"]
+__all__ = ["wilson_interval", "clustered_interval", "world_variance", "by_world", "ByWorld",
+           "EvalResult", "run_flights", "evaluate_policy"]

@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import viz
 from ..world import render_batch, topdown
-from .evaluate import run_flights, wilson_interval
+from .evaluate import by_world, run_flights, wilson_interval
 from .flights import Flights, FlightsConfig
 from .policies import EnsemblePolicy, QNetPolicy
 
@@ -66,11 +66,19 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
                                         (200, 4), (255, 40, 40)))
 
     survived = run_flights(policy, flights, max_steps, record=record)
-    k = int((survived >= max_steps).sum())
+    success = survived >= max_steps
+    k = int(success.sum())
     lo, hi = wilson_interval(k, n_flights)
+    # the flights share a pool of worlds: the interval by world (rl/evaluate.py) is the
+    # one to read for "how well does it fly this scenario", and it is wider
+    w = by_world(success, np.asarray(flights.world_seeds)[flights.world_of])
     gif = viz.write_gif(frames_out, gif, fps=4)
     return {"scenario": scenario, "seed": seed, "flights": n_flights, "successes": k,
             "success_rate": k / n_flights, "ci95": [round(lo, 4), round(hi, 4)],
+            "worlds": len(w.flights),
+            "ci95_by_world": None if len(w.flights) < 2 else
+            [round(w.ci_low, 4), round(w.ci_high, 4)],
+            "design_effect": None if len(w.flights) < 2 else round(w.design_effect, 3),
             "depth": depth, "gif": str(gif), "seconds": round(time.time() - t0, 1),
             "flight0_steps": int(survived[0])}
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import multiprocessing as mp
 import time
 from pathlib import Path
@@ -206,24 +207,35 @@ def reproduce(out: Path, quick: bool = False, seed: int = 0, depth: str = "pred"
     return results
 
 
+def intervals(r: dict) -> str:
+    """A row's two 95% intervals as two table cells: Wilson's by flight, and by world
+    (``evaluate.clustered_interval``; blank in results written before it existed)."""
+    lo, hi = r.get("ci_low_worlds"), r.get("ci_high_worlds")
+    by_world = "" if lo is None or not math.isfinite(lo) else f"[{lo:.3f}, {hi:.3f}]"
+    return f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | {by_world}"
+
+
 def markdown_tables(results: dict) -> str:
     lines = []
+    note = ("95% intervals: Wilson's by flight, and by world (the flights share worlds; "
+            "read this one, docs/d3rqn.md section 9)")
     if results.get("table5"):
-        lines += ["Table 5 (basic): success rate over test flights, 95% Wilson interval", "",
-                  "| model | ours | 95% CI | paper |", "|---|---|---|---|"]
+        lines += ["Table 5 (basic): success rate over test flights", "", note, "",
+                  "| model | ours | 95% CI by flight | by world | paper |",
+                  "|---|---|---|---|---|"]
         for r in results["table5"]:
             paper = PAPER_T5.get(r["policy"])
-            lines.append(f"| {r['policy']} | {r['rate']:.3f} | [{r['ci_low']:.3f}, "
-                         f"{r['ci_high']:.3f}] | {'' if paper is None else paper} |")
+            lines.append(f"| {r['policy']} | {r['rate']:.3f} | {intervals(r)} | "
+                         f"{'' if paper is None else paper} |")
         lines.append("")
     if results.get("table6"):
-        lines += ["Table 6 (transfer, Q-net from basic unchanged)", "",
-                  "| scenario | model | ours | 95% CI | paper |", "|---|---|---|---|---|"]
+        lines += ["Table 6 (transfer, Q-net from basic unchanged)", "", note, "",
+                  "| scenario | model | ours | 95% CI by flight | by world | paper |",
+                  "|---|---|---|---|---|---|"]
         for r in results["table6"]:
             paper = PAPER_T6.get(r["scenario"], {}).get(r["policy"])
             lines.append(f"| {r['scenario']} | {r['policy']} | {r['rate']:.3f} | "
-                         f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | "
-                         f"{'' if paper is None else paper} |")
+                         f"{intervals(r)} | {'' if paper is None else paper} |")
     return "\n".join(lines) + "\n"
 
 
@@ -440,11 +452,11 @@ def distilled_table(results: dict) -> str:
         parents += f", {steps:,} transitions each"
     lines = [f"The distilled D3RQN (ours, {results.get('recipe', 'distil')}), predicted depth; "
              f"the teacher on GT depth in basic",
-             "", "| model | scenario | ours | 95% CI | target |", "|---|---|---|---|---|"]
+             "", "| model | scenario | ours | 95% CI by flight | by world | target |",
+             "|---|---|---|---|---|---|"]
     def row(label, r):                          # a row on predicted depth, against the target
         target = 0.95 if r["scenario"] == "basic" else 0.90
-        return (f"| {label} | {r['scenario']} | {r['rate']:.3f} | "
-                f"[{r['ci_low']:.3f}, {r['ci_high']:.3f}] | {target:.2f} |")
+        return f"| {label} | {r['scenario']} | {r['rate']:.3f} | {intervals(r)} | {target:.2f} |"
     lines += [row(r["spec"], r) for r in results["students"]]
     for r in results.get("together", []):       # an ensemble: n nets, 2n Q-net passes
         n = r["spec"].count("+") + 1
@@ -452,10 +464,10 @@ def distilled_table(results: dict) -> str:
                          f"{2 * n} Q-net passes per step)", r))
     t = results["teacher"]
     lines.append(f"| teacher ({parents}), GT depth | basic | {t['rate']:.3f} | "
-                 f"[{t['ci_low']:.3f}, {t['ci_high']:.3f}] | |")
+                 f"{intervals(t)} | |")
     for v in results.get("validation", []):
         lines.append(f"| {v['spec']}, GT depth, **validation worlds** | basic | {v['rate']:.3f} "
-                     f"| [{v['ci_low']:.3f}, {v['ci_high']:.3f}] | |")
+                     f"| {intervals(v)} | |")
     if "start" in results:
         grew = "Stage 1" if results.get("stage1", True) else "No stage 1: stage 2"
         lines.append(f"\n{grew} grew {results['start']}.")
