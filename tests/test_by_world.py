@@ -111,6 +111,18 @@ def test_by_world_groups_flights_by_their_world():
         by_world(success, seeds[:3])
 
 
+def test_one_world_gives_no_interval_by_world_and_strict_json():
+    """A single flight flies one world: no interval by world (NaN in the result, None in
+    its dict), and the dict is strict JSON (no NaN token)."""
+    import json
+    res = evaluate_policy(ReactivePolicy(ACTIONS), "basic", n_flights=1, max_steps=2,
+                          progress=False)
+    assert res.worlds == 1 and np.isnan(res.ci_low_worlds) and "by world" not in res.line()
+    d = res.to_dict()
+    assert d["ci_low_worlds"] is None and d["design_effect"] is None
+    assert json.loads(json.dumps(d, allow_nan=False)) == d
+
+
 def test_the_tables_show_both_intervals():
     """reproduce's tables give each row its interval by flight and by world; a record
     written before the interval by world existed leaves that cell blank, not an error."""

@@ -142,7 +142,10 @@ class EvalResult:
                 f"mean steps {self.mean_steps:.1f}, {self.seconds:.0f} s{where}{by_world})")
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The fields as a dict for JSON: a NaN (no interval by world from fewer than two
+        worlds) becomes None, so the files written are strict JSON."""
+        return {k: None if isinstance(v, float) and math.isnan(v) else v
+                for k, v in asdict(self).items()}
 
 
 @dataclass
