@@ -204,13 +204,15 @@ def paired_difference(a: list[dict], b: list[dict], z: float = 1.96) -> tuple:
 
 def _matches(record: dict, conditions: list[str]) -> bool:
     """Every KEY=VALUE holds: the record's value as text equals VALUE, or matches it as a
-    shell pattern (``spec=runs/e37_twin/*``)."""
+    shell pattern (``spec=runs/e37_twin/*``), or one of several joined by commas
+    (``seed=12345,24680,31415``)."""
     for cond in conditions:
-        key, _, want = cond.partition("=")
+        key, _, wants = cond.partition("=")
         if key not in record:
             return False
         have = str(record[key])
-        if have != want and not fnmatch.fnmatchcase(have, want):
+        if not any(have == want or fnmatch.fnmatchcase(have, want)
+                   for want in wants.split(",")):
             return False
     return True
 
@@ -242,7 +244,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("files", nargs="+", help="JSON-lines files written by evaluate --json")
     p.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
                    help="keep records whose KEY is VALUE (a shell pattern allowed: "
-                        "'spec=runs/*'); repeat to require several")
+                        "'spec=runs/*'; or any of several: seed=12345,24680); "
+                        "repeat to require several")
     p.add_argument("--against", action="append", default=[], metavar="KEY=VALUE",
                    help="a second group: the --where conditions with these keys "
                         "replaced; print the first group's rate minus this one's, paired "
