@@ -482,6 +482,14 @@ def test_recorded_result_picks_the_largest_matching_evaluation(tmp_path):
     assert commands.recorded_result(tmp_path / "none.npz", "basic", "gt") is None
 
 
+def test_recorded_text_gives_the_interval_by_world_when_the_row_has_it():
+    row = {"rate": 0.7, "ci95": [0.68, 0.72], "flights": 2000, "seed": 1}
+    old = commands.recorded_text(row)
+    assert "by flight" in old and "by world" not in old and "seed 1" in old
+    new = commands.recorded_text(dict(row, ci95_by_world=[0.65, 0.75], worlds=128))
+    assert "[0.650, 0.750] by world (128 worlds)" in new and "[0.680, 0.720] by flight" in new
+
+
 def test_conv_channels_widen_the_torso_and_are_checked(tmp_path):
     p = argparse.ArgumentParser()
     commands.add_arguments_train_agent(p)

@@ -613,11 +613,20 @@ def run_fly(args) -> int:
                                flip_tta=depth == "pred" and args.flip_tta)
     if recorded:
         print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
-              f"result here: {recorded['rate']:.3f} [{recorded['ci95'][0]:.3f}, "
-              f"{recorded['ci95'][1]:.3f}] by flight over {recorded['flights']} flights (seed "
-              f"{recorded['seed']}; {Path(model).with_suffix('.json').name} beside it, "
-              f"docs/results.md, docs/experiments.md)", file=sys.stderr)
+              f"result here: {recorded_text(recorded)} ("
+              f"{Path(model).with_suffix('.json').name} beside it, docs/results.md, "
+              "docs/experiments.md)", file=sys.stderr)
     return 0
+
+
+def recorded_text(row: dict) -> str:
+    """One recorded evaluation in words: the rate, Wilson's interval by flight, and the
+    interval by world when the row has it (rows written before it was measured do not)."""
+    text = f"{row['rate']:.3f}, 95% CI [{row['ci95'][0]:.3f}, {row['ci95'][1]:.3f}] by flight"
+    if row.get("ci95_by_world"):
+        lo, hi = row["ci95_by_world"]
+        text += f", [{lo:.3f}, {hi:.3f}] by world ({row['worlds']} worlds)"
+    return text + f", over {row['flights']} flights (seed {row['seed']})"
 
 
 def recorded_result(model, scenario: str, depth: str, mirror: bool = False,

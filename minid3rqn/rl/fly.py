@@ -72,13 +72,13 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
     # the flights share a pool of worlds: the interval by world (rl/evaluate.py) is the
     # one to read for "how well does it fly this scenario", and it is wider
     w = by_world(success, np.asarray(flights.world_seeds)[flights.world_of])
+    one_world = len(w.flights) < 2          # then there is no interval by world
     gif = viz.write_gif(frames_out, gif, fps=4)
     return {"scenario": scenario, "seed": seed, "flights": n_flights, "successes": k,
             "success_rate": k / n_flights, "ci95": [round(lo, 4), round(hi, 4)],
             "worlds": len(w.flights),
-            "ci95_by_world": None if len(w.flights) < 2 else
-            [round(w.ci_low, 4), round(w.ci_high, 4)],
-            "design_effect": None if len(w.flights) < 2 else round(w.design_effect, 3),
+            "ci95_by_world": None if one_world else [round(w.ci_low, 4), round(w.ci_high, 4)],
+            "design_effect": None if one_world else round(w.design_effect, 3),
             "depth": depth, "gif": str(gif), "seconds": round(time.time() - t0, 1),
             "flight0_steps": int(survived[0])}
 
