@@ -257,6 +257,11 @@ def test_shipped_model_loads_and_beats_random(name):
     path = commands.SHIPPED_QNETS[name]
     assert path.is_file(), f"shipped Q-net {name!r} missing: {path}"
     assert commands.recorded_result(path, "basic", "pred") is not None
+    # every recorded evaluation gives both 95% intervals, the one by world no narrower
+    for row in json.loads(path.with_suffix(".json").read_text())["evaluations"]:
+        lo, hi = row["ci95"]
+        wlo, whi = row["ci95_by_world"]
+        assert wlo <= lo <= row["rate"] <= hi <= whi and row["worlds"] >= 2, row["command"]
     pol = QNetPolicy.load(path)
     assert "command" in pol.meta and "seed" in pol.meta
     q = evaluate_policy(pol, "basic", n_flights=32, chunk=32, seed=7, progress=False)
