@@ -613,9 +613,9 @@ def run_fly(args) -> int:
                                flip_tta=depth == "pred" and args.flip_tta)
     if recorded:
         print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
-              f"result here: {recorded_text(recorded)} ("
-              f"{Path(model).with_suffix('.json').name} beside it, docs/results.md, "
-              "docs/experiments.md)", file=sys.stderr)
+              f"result here: {recorded_text(recorded)}. See "
+              f"{Path(model).with_suffix('.json').name} beside it, docs/results.md and "
+              "docs/experiments.md", file=sys.stderr)
     return 0
 
 
