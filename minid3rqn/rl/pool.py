@@ -288,7 +288,7 @@ def _run(args) -> int:
         try:
             t = groups_differ(parts)
         except ValueError as e:        # no test possible; the groups' lines still stand
-            print(f"do the {len(parts)} groups differ? no test: {e}")
+            print(f"do the groups differ? no test: {e}")
         else:
             note = (f" ({t['shared_worlds']} world(s) drawn by two groups, ignored)"
                     if t["shared_worlds"] else "")
