@@ -288,7 +288,8 @@ def _run(args) -> int:
         try:
             t = groups_differ(parts)
         except ValueError as e:        # no test possible; the groups' lines still stand
-            print(f"do the groups differ? no test: {e}")
+            n = f" {len(parts)}" if len(parts) > 1 else ""
+            print(f"do the{n} groups differ? no test: {e}")
         else:
             note = (f" ({t['shared_worlds']} world(s) drawn by two groups, ignored)"
                     if t["shared_worlds"] else "")
