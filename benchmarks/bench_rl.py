@@ -26,6 +26,9 @@ Measured (medians over ``--repeat`` runs after warm-ups, float32):
   (the result is then extrapolated linearly and marked so). ``--eval-workers 1,2``
   times it with the flights' chunks spread over that many processes, one per core
   (``evaluate --workers``; each process runs ``--threads`` BLAS threads).
+- The timed process keeps freed memory for reuse, as ``python -m minid3rqn`` does
+  (minid3rqn/allocator.py); ``--default-malloc`` leaves glibc's allocator at its
+  defaults (the figures of the sessions before the forty-second).
 - ``--qnet FILE``: the framework and eval parts fly this Q-net instead of the shipped one
   (e.g. a student with a wider LSTM, ``train-agent --init-widen``).
 - ``--ensemble N``: the framework and eval parts fly N copies of the D3RQN as an
@@ -323,6 +326,10 @@ def bench_eval(flights: int, threads: int, workers: int = 1, ensemble: int = 1,
 
 def child(args) -> None:
     sys.path.insert(0, ROOT)
+    from minid3rqn.allocator import keep_freed_memory
+    kept = False if args.default_malloc else keep_freed_memory()
+    print(json.dumps({"allocator": "freed memory kept" if kept else "glibc defaults"}),
+          flush=True)
     parts = args.only.split(",") if args.only else ["update", "framework", "eval"]
     if "update" in parts:
         print(json.dumps(bench_update(args.repeat, args.threads)), flush=True)
@@ -363,6 +370,9 @@ def main():
     p.add_argument("--mirror", action="store_true",
                    help="framework and eval parts: each Q-net also flies the mirrored view "
                         "(evaluate --mirror): two Q-net passes per step")
+    p.add_argument("--default-malloc", action="store_true",
+                   help="leave glibc's allocator at its defaults instead of keeping freed "
+                        "memory as python -m minid3rqn does (minid3rqn/allocator.py)")
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args()
     if args.child:
@@ -381,6 +391,8 @@ def main():
         cmd += ["--flip-tta"]
     if args.mirror:
         cmd += ["--mirror"]
+    if args.default_malloc:
+        cmd += ["--default-malloc"]
     if args.qnet:
         if not Path(args.qnet).is_file():
             p.error(f"--qnet: expected a Q-net .npz file; got {args.qnet!r} (not a file)")

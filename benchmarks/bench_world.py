@@ -4,6 +4,10 @@ Run (numbers in docs/world.md come from this command):
 
     OMP_NUM_THREADS=1 python benchmarks/bench_world.py --seed 0
 
+It keeps freed memory for reuse, as ``python -m minid3rqn`` does (minid3rqn/allocator.py);
+``--default-malloc`` leaves glibc's allocator at its defaults (the figures of the sessions
+before the forty-second).
+
 Each figure is the median CPU time (``time.thread_time``) of individually timed calls in
 one process on one core: CPU time leaves out the time other processes hold the core, so
 the figures stay comparable on a shared machine (a busy machine still slows them down
@@ -17,6 +21,7 @@ import time
 import numpy as np
 import pymunk
 
+from minid3rqn.allocator import keep_freed_memory
 from minid3rqn.world import (Camera, DroneEnv, VecDroneEnv, make_scene, render, render_batch,
                              sample_start_pose)
 from minid3rqn.world.renderer import cast_columns
@@ -85,10 +90,14 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--n-envs", type=int, default=100)
     parser.add_argument("--quick", action="store_true", help="fewer iterations (a smoke run)")
+    parser.add_argument("--default-malloc", action="store_true",
+                        help="leave glibc's allocator at its defaults instead of keeping "
+                             "freed memory as python -m minid3rqn does (minid3rqn/allocator.py)")
     parser.add_argument("--profile", action="store_true",
                         help="instead: where a batched step's time goes (cProfile of 40 "
                              "VecDroneEnv.step calls, --n-envs flights)")
     args = parser.parse_args(argv)
+    kept = False if args.default_malloc else keep_freed_memory()
     if args.profile:
         profile_vec_step(args.scenario, args.n_envs, args.seed)
         return
@@ -156,7 +165,8 @@ def main(argv=None):
     sec_gen = best_time(lambda: make_scene(args.scenario, next(seeds)), int(20 * k) or 3, reps)
     rows.append((f"make_scene({args.scenario!r}) (world generation)", 1 / sec_gen, sec_gen))
 
-    print(f"scenario {args.scenario!r}, seed {args.seed}, median CPU time per call\n")
+    print(f"scenario {args.scenario!r}, seed {args.seed}, median CPU time per call; "
+          f"allocator: {'freed memory kept' if kept else 'glibc defaults'}\n")
     print("| measurement | frames/s | ms per frame |")
     print("|---|---:|---:|")
     for name, fps, sec in rows:

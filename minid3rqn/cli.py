@@ -9,6 +9,8 @@ import argparse
 import importlib
 import sys
 
+from .allocator import keep_freed_memory
+
 # command name -> (module, one-line help). Each module defines add_arguments(parser)
 # and run(args) -> int for its command (named ``cli_<command>`` with dashes -> _).
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -58,6 +60,7 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
+    keep_freed_memory()    # speed only: NumPy's temporaries reuse memory (allocator.py)
     return int(_hook(args._module, args._name, "run")(args) or 0)
 
 
