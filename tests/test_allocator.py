@@ -57,6 +57,13 @@ def test_returns_whether_it_applied():
     assert keep_freed_memory() is GLIBC               # again: the same, no harm
 
 
+@pytest.mark.parametrize("value, applied", [("1", False), ("yes", False), ("0", GLIBC),
+                                              ("", GLIBC)])
+def test_the_environment_can_opt_out(monkeypatch, value, applied):
+    monkeypatch.setenv("MINID3RQN_DEFAULT_MALLOC", value)
+    assert keep_freed_memory() is applied
+
+
 @pytest.mark.parametrize("kwargs, name", [({"trim_bytes": 0}, "trim_bytes"),
                                           ({"mmap_bytes": -1}, "mmap_bytes"),
                                           ({"trim_bytes": 2 ** 31}, "trim_bytes"),
