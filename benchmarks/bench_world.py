@@ -21,6 +21,11 @@ import time
 import numpy as np
 import pymunk
 
+try:
+    import resource                   # Unix only: the page-fault count below
+except ImportError:
+    resource = None
+
 from minid3rqn.allocator import keep_freed_memory
 from minid3rqn.world import (Camera, DroneEnv, VecDroneEnv, make_scene, render, render_batch,
                              sample_start_pose)
@@ -41,6 +46,18 @@ def best_time(fn, n: int, repeats: int) -> float:
         fn()
         times.append(clock() - start)
     return float(np.median(times))
+
+
+def cast_faults(fn, n: int) -> tuple[float, float, float]:
+    """Per call of ``fn`` (mean of n calls): pages the kernel had to fault in (memory the
+    allocator had handed back and asked for again), and the user and kernel CPU ms."""
+    before = resource.getrusage(resource.RUSAGE_SELF)
+    for _ in range(n):
+        fn()
+    after = resource.getrusage(resource.RUSAGE_SELF)
+    return ((after.ru_minflt - before.ru_minflt) / n,
+            1e3 * (after.ru_utime - before.ru_utime) / n,
+            1e3 * (after.ru_stime - before.ru_stime) / n)
 
 
 def pymunk_depth_row(scene, pose, xn, reach=200.0):
@@ -129,6 +146,7 @@ def main(argv=None):
     sec_cast_b = best_time(lambda: cast_columns(batch, many, xn), max(2, int(10 * k)), reps) / 256
     rows.append(("ray cast only, 256 poses per call, NumPy (per frame)", 1 / sec_cast_b,
                  sec_cast_b))
+    faults = cast_faults(lambda: cast_columns(batch, many, xn), 10) if resource else None
     sec_batch1 = best_time(lambda: render_batch(scene, many[:100], cam), max(2, int(10 * k)),
                            reps) / 100
     rows.append(("render_batch, 100 poses in 1 world, 32x104 (per frame)", 1 / sec_batch1,
@@ -175,6 +193,9 @@ def main(argv=None):
           f"(ray casting alone: {sec_pm / sec_cast:.1f}x; batched ray casting: "
           f"{sec_pm / sec_cast_b:.1f}x; batched render: {sec_pm / sec_batch1:.1f}x)")
     print(f"batched step vs single steps, per frame: {sec_single / sec_vec:.1f}x faster")
+    if faults:
+        print("one 256-pose cast call: {:,.0f} pages faulted in, {:.2f} ms user, {:.2f} ms "
+              "kernel time (mean of 10 calls)".format(*faults))
 
 
 if __name__ == "__main__":
