@@ -12,8 +12,8 @@ world.md, section Speed, "Where the cast's time went").
 
 ``keep_freed_memory`` raises both thresholds with ``mallopt``, so that blocks up to
 ``mmap_bytes`` come from the heap and up to ``trim_bytes`` of freed memory stay with the
-process for the next call. Results do not change (only where the memory comes from),
-and the process keeps at most ``trim_bytes`` more than it uses. ``python -m minid3rqn``
+process for the next call. Results do not change (only where the memory comes from);
+the cost is up to ``trim_bytes`` of freed memory held at the top of the heap. ``python -m minid3rqn``
 calls it before every command; a script may call it once at its start. On other systems
 (macOS, Windows, or Linux with another C library) it does nothing and says so by
 returning False; so does it when the environment variable ``MINID3RQN_DEFAULT_MALLOC``

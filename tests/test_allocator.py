@@ -12,8 +12,9 @@ from minid3rqn.allocator import keep_freed_memory
 GLIBC = (platform.system() == "Linux" and platform.libc_ver()[0] == "glibc"
          and sys.maxsize > 2 ** 32)
 
-# A child process (the setting is process-wide, so the test process is left alone) casts
-# 256 poses a few times to warm up, then counts the page faults of ten more casts.
+# A fresh child process (so that neither the setting nor the count depends on what other
+# tests did) casts 256 poses a few times to warm up, then counts the page faults of ten
+# more casts.
 CHILD = textwrap.dedent("""
     import resource, sys
     import numpy as np
