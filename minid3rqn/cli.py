@@ -10,6 +10,7 @@ import importlib
 import sys
 
 from .allocator import keep_freed_memory
+from .config import UsageError
 
 # command name -> (module, one-line help). Each module defines add_arguments(parser)
 # and run(args) -> int for its command (named ``cli_<command>`` with dashes -> _).
@@ -61,7 +62,11 @@ def main(argv=None) -> int:
         parser.print_help()
         return 0
     keep_freed_memory()    # speed only: NumPy's temporaries reuse memory (allocator.py)
-    return int(_hook(args._module, args._name, "run")(args) or 0)
+    try:
+        return int(_hook(args._module, args._name, "run")(args) or 0)
+    except UsageError as e:    # a bad input: one line naming the option, no traceback
+        print(f"{parser.prog} {args.command}: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
