@@ -74,6 +74,10 @@ class Module:
     def load(self, path) -> dict | None:
         """Load parameters saved by ``save``; returns the metadata."""
         arrays, meta = load_npz(path)
+        for name, value in arrays.items():
+            if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+                raise ValueError(f"{str(path)!r}: weight {name!r} holds NaN or inf; a "
+                                 f"model with non-finite weights cannot fly")
         self.load_state_dict(arrays)
         return meta
 
