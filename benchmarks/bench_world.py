@@ -169,7 +169,7 @@ def main(argv=None):
     act = np.random.default_rng(args.seed)
     env = DroneEnv(args.scenario, seed=args.seed)
     sec_single = time_steps(env, lambda: int(act.integers(5)), int(40 * k) or 3)
-    rows.append(("DroneEnv.step (pymunk distances + render), 1 flight", 1 / sec_single,
+    rows.append(("DroneEnv.step (distances + render), 1 flight", 1 / sec_single,
                  sec_single))
     n = args.n_envs
     vec = VecDroneEnv(n, args.scenario, seed=args.seed, autoreset=False)

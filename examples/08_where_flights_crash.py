@@ -30,12 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from minid3rqn.rl.commands import (encoding_for, horizon_for, load_depth_estimator,
-                                   make_policy)
+from minid3rqn.rl.commands import horizon_for, load_depth_estimator, make_policy
 from minid3rqn.rl.evaluate import evaluate_policy
-from minid3rqn.rl.flights import Flights, FlightsConfig
+from minid3rqn.rl.flights import Flights
+from minid3rqn.world import Camera
 from minid3rqn.world.distance import KINDS, nearest_distance_batch, nearest_distance_by_kind
-from minid3rqn.world.kinematics import ACTION_INTERVAL, SAFE_DISTANCE, substep_poses
+from minid3rqn.world.stepper import action_arcs
 
 MODELS = Path(__file__).resolve().parents[1] / "minid3rqn" / "models"
 HALF_VIEW = 45.0        # degrees: half the camera's horizontal field of view
@@ -55,13 +55,13 @@ class CrashLog(Flights):
         hit = np.flatnonzero(res.terminated)
         if hit.size:
             # the same arc as Flights.step, to find where the clearance first fell short
-            a = self.actions[np.asarray(actions)[hit]]
-            path = substep_poses(before[hit], a[:, 0], a[:, 1], ACTION_INTERVAL, self.n_sub)
+            chosen = np.asarray(actions)[hit]
+            path = action_arcs(before[hit], self.actions, chosen, self.dt)
             batch = self._sub_batch(hit)
             clear = nearest_distance_batch(batch, path[:, :, :2])
-            first = (clear < SAFE_DISTANCE).argmax(axis=1)
+            first = (clear < self.safe_distance).argmax(axis=1)
             kind, bearing = what_was_hit(batch, before[hit], path[np.arange(hit.size), first])
-            self.log.append(np.stack([kind, bearing, a[:, 1]], axis=1))
+            self.log.append(np.stack([kind, bearing, self.actions[chosen, 1]], axis=1))
         return res
 
 
@@ -114,11 +114,11 @@ def main(argv=None):
         est = (load_depth_estimator(MODELS / f"depth_{scenario}.npz")
                if args.depth == "pred" else None)
         row = horizon_for("08_where_flights_crash", None, est, [policy])
-        cfg = FlightsConfig(horizon_row=row, encoding=encoding_for("08", None, [policy]))
         log = []
         res = evaluate_policy(policy, scenario, args.flights, args.seed, depth=args.depth,
-                              depth_estimator=est, flights_config=cfg, progress=False,
-                              flights_factory=partial(CrashLog, log=log))
+                              depth_estimator=est, progress=False,
+                              flights_factory=partial(CrashLog, log=log,
+                                                      camera=Camera(horizon_row=row)))
         crashes = np.concatenate(log) if log else np.zeros((0, 3))
         assert len(crashes) == res.flights - res.successes   # every failure was a collision
         print(f"{res.line()}\n    {summarise(crashes)}", flush=True)

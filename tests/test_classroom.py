@@ -368,7 +368,6 @@ def test_log_error_parts_splits_the_error():
 
 def test_depth_fn_applies_in_training_flights_only():
     import importlib
-    from minid3rqn.classroom.flights import ClassroomFlights
     from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
     tr, ev = (importlib.import_module(f"minid3rqn.rl.{m}") for m in ("train", "evaluate"))
     cfg = FlightsConfig(n_worlds=2)
@@ -386,7 +385,7 @@ def test_depth_fn_applies_in_training_flights_only():
     gt = depth_only(fl.batch, fl.poses, fl.camera)
     np.testing.assert_allclose(res.frames, fl.encode(2.0 * gt), atol=1e-6)
     # the same seed flies the same worlds and start poses as the library's flights
-    plain, noisy = Flights("basic", 3, seed=0, config=cfg), ClassroomFlights(
+    plain, noisy = Flights("basic", 3, seed=0, config=cfg), Flights(
         "basic", 3, seed=0, config=cfg, depth_fn=lambda d, rng: d * rng.uniform(0.5, 2.0))
     plain.reset(), noisy.reset()
     assert np.array_equal(plain.world_seeds, noisy.world_seeds)
@@ -395,7 +394,7 @@ def test_depth_fn_applies_in_training_flights_only():
     # flights made without depth_fn (the runner's test flights) see the depth as it is
     with adapters.classroom_flights():
         clean = ev.Flights("basic", 3, seed=0, config=cfg)
-    assert isinstance(clean, ClassroomFlights) and clean.depth_fn is None
+    assert isinstance(clean, Flights) and clean.depth_fn is None
     clean.reset()
     np.testing.assert_array_equal(clean.last_depth,
                                   depth_only(clean.batch, clean.poses, clean.camera))
@@ -451,17 +450,15 @@ def test_run_depth_errors_smoke(tmp_path, monkeypatch):
 
 
 # -- adapters: the change reaches training ---------------------------------------------
-def test_classroom_flights_pays_the_students_reward():
-    from minid3rqn.rl.flights import FlightsConfig
+def test_flights_pay_the_students_reward():
+    from minid3rqn.rl.flights import Flights, FlightsConfig
     seen = {}
 
     def reward(d, collided, yaw_rate=0.0):
         seen["yaw"] = np.asarray(yaw_rate).copy()
         return np.where(collided, -1.0, 7.0 - np.abs(yaw_rate))
 
-    from minid3rqn.classroom.flights import ClassroomFlights
-    fl = ClassroomFlights("basic", 3, seed=0, reward_fn=reward,
-                                   config=FlightsConfig(n_worlds=2))
+    fl = Flights("basic", 3, seed=0, reward_fn=reward, config=FlightsConfig(n_worlds=2))
     fl.reset()
     res = fl.step(np.array([0, 3, 4]))
     np.testing.assert_allclose(seen["yaw"], [0.0, 0.5, -0.5])

@@ -11,7 +11,6 @@ from minid3rqn.depth.data import Sequence, collect
 from minid3rqn.depth.evaluate import DepthEstimator, evaluate
 from minid3rqn.depth.train import TrainConfig, Trainer
 from minid3rqn.nets.dispnet import DispNet
-from minid3rqn.rl.flights import Flights, FlightsConfig
 from minid3rqn.world import Camera
 from minid3rqn.world.geometry import inverse_warp_numpy, relative_transform
 
@@ -176,30 +175,6 @@ def test_training_builds_the_cost_volume_with_the_flights_motion(seq):
     tr.run(progress=False)
     with pytest.raises(ValueError, match="source offsets must include -1"):
         Trainer(seq, _cfg(cost_volume=4, source_offsets=(1, 2)))
-
-
-def test_flights_hand_a_cost_volume_model_the_motion(monkeypatch):
-    net = DispNet((8, 16, 16, 16), (8, 8, 8, 8), 1, rng=0, cost_planes=3)
-    cam = Camera()
-    est = DepthEstimator(net, 2.0, {"K": cam.K.tolist()})
-    seen = []
-    real = est.predict
-
-    def spy(rgb, batch_size=64, prev=None, motion=None):
-        seen.append(motion.copy())
-        return real(rgb, batch_size, prev, motion)
-
-    monkeypatch.setattr(est, "predict", spy)
-    fl = Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=3), depth="pred",
-                 depth_estimator=est, autoreset=False)
-    fl.reset()
-    before = fl.poses.copy()
-    straight_back = before.copy()
-    straight_back[:, 0] -= 0.8 * np.cos(before[:, 2])
-    straight_back[:, 1] -= 0.8 * np.sin(before[:, 2])
-    np.testing.assert_allclose(seen[-1], relative_transform(before, straight_back))
-    fl.step(np.full(3, 4, np.int64))                   # a turn
-    np.testing.assert_allclose(seen[-1], relative_transform(fl.poses, before))
 
 
 def test_train_depth_cost_volume_smoke(tmp_path):

@@ -337,59 +337,6 @@ def test_bad_kl_settings_get_clear_errors(tmp_path):
             commands.run_train_agent(args)
 
 
-def _other_teacher(path) -> str:
-    """A second teacher file, different from TEACHER (its weights scaled), for tests."""
-    from minid3rqn.io import load_npz, save_npz
-    arrays, meta = load_npz(TEACHER)
-    scaled = {k: (v * 0.5 if np.issubdtype(v.dtype, np.floating) else v)
-              for k, v in arrays.items()}
-    return str(save_npz(path, scaled, meta))
-
-
-def test_base_teachers_label_the_flights_in_the_scenarios_own_worlds(tmp_path):
-    """--base-teachers: in a mixed pool every flight gets the labels and (when the teacher
-    flies) the actions of its own world's teacher; both teachers' states resume exactly."""
-    pool = FlightsConfig(n_worlds=4, scene={"n_obstacles": [2, 2]}, scene_mix=0.5)
-    cfg = small_config(n_envs=8, teacher_mix=1.0, teacher_mix_steps=10 ** 9, flights=pool,
-                       base_teachers=_other_teacher(tmp_path / "other.npz"))
-    d = Distiller(cfg, tmp_path / "labels", progress=False)
-    d._start()
-    seen = set()
-    for _ in range(6):
-        changed = d.flights.in_changed_world().copy()
-        seen |= set(changed.tolist())
-        before = d.replay.count.copy()
-        actions = d.choose_actions()
-        slot = (before - 1) % d.replay.cap
-        labels = d.replay.labels[np.arange(8), slot]
-        want = np.where(changed[:, None], d.teacher.last_q, d.base_teacher.last_q)
-        np.testing.assert_array_equal(labels, want)
-        np.testing.assert_array_equal(actions, np.argmax(want, axis=1))
-        assert not np.allclose(d.teacher.last_q, d.base_teacher.last_q)
-        d.flights.step(actions)                 # new worlds for the flights that ended
-    assert seen == {True, False}, "the test needs flights in both kinds of world"
-    run_and_resume(Distiller, cfg, tmp_path / "resume", until=48)
-
-
-def test_base_teachers_need_a_mixed_pool_and_teachers(tmp_path):
-    other = _other_teacher(tmp_path / "other.npz")
-    with pytest.raises(ValueError, match="base_teachers.*scene_mix < 1"):
-        Distiller(small_config(base_teachers=other), tmp_path / "a", progress=False)
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    for argv in (["--base-teachers", other],
-                 ["--teachers", TEACHER, "--base-teachers", other],
-                 ["--teachers", TEACHER, "--base-teachers", other, "--scene", "n_obstacles=2,2"]):
-        args = p.parse_args(["--smoke", "--quiet", *argv, "--out", str(tmp_path / "cli")])
-        with pytest.raises(SystemExit, match="--base-teachers.*--scene-mix < 1"):
-            commands.run_train_agent(args)
-    args = p.parse_args(["--smoke", "--quiet", "--teachers", TEACHER, "--base-teachers",
-                         "random", "--scene", "n_obstacles=2,2", "--scene-mix", "0.5",
-                         "--out", str(tmp_path / "cli")])
-    with pytest.raises(SystemExit, match="--base-teachers.*not a file"):
-        commands.run_train_agent(args)
-
-
 def test_window_length_and_batch_size_are_settable_and_checked(tmp_path, monkeypatch):
     """``--seq-len`` and ``--batch-size`` reach the replay's sampler; bad values are named."""
     d = Distiller(small_config(seq_len=9, batch_size=3, total_steps=64), tmp_path, progress=False)

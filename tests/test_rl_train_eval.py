@@ -16,30 +16,13 @@ from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only, encode_dept
 from minid3rqn.rl.policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy,
                                    StraightPolicy)
 from minid3rqn.rl.train import TrainConfig, Trainer
-from minid3rqn.world import ACTIONS
-from minid3rqn.world.scenarios import make_scene
+from minid3rqn.world import ACTIONS, Camera
 
 pytestmark = pytest.mark.rl
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "minid3rqn" / "models" / "d3rqn_basic.npz"
 SHIPPED_DEPTH = ROOT / "minid3rqn" / "models" / "depth_basic.npz"
-
-
-def smoke_train_meta(run, *flags) -> dict:
-    """``train-agent --smoke --quiet FLAGS --out RUN``; the saved model's meta."""
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    assert commands.run_train_agent(p.parse_args(["--smoke", "--quiet", *flags,
-                                                  "--out", str(run)])) == 0
-    return QNetPolicy.load(Path(run) / "model.npz").meta
-
-
-def obstacles(flights) -> list:
-    """How many obstacles (pillars and boxes) each world of a Flights pool (or each scene of
-    a list) holds."""
-    worlds = flights if isinstance(flights, list) else flights.worlds
-    return [len(w.circle_radii) + len(w.poly_verts) for w in worlds]
 
 
 def test_wilson_interval():
@@ -63,6 +46,30 @@ def test_flights_step_contract():
         assert np.all(res.rewards[~res.terminated] >= 0.5)
     with pytest.raises(ValueError, match="actions"):
         fl.step(np.full(4, 7))
+
+
+def test_flights_reward_and_depth_functions_resume_exactly():
+    """reward_fn and depth_fn are arguments; a Flights restored from state_dict and
+    meta_state steps on exactly as the original (the corruption's generator too)."""
+    def make():
+        return Flights("basic", 3, seed=2, config=FlightsConfig(n_worlds=2),
+                       reward_fn=lambda d, collided: np.where(collided, -5.0, 2.0 * d),
+                       depth_fn=lambda d, rng: d * rng.uniform(0.8, 1.2, (len(d), 1, 1)))
+    a, b = make(), make()
+    a.reset(), b.reset()
+    for _ in range(4):
+        res = a.step(np.array([0, 3, 4]))
+    np.testing.assert_allclose(res.rewards, np.where(res.terminated, -5.0, 2.0 * res.d_nearest),
+                               rtol=1e-6)
+    b.load_state_dict({k: np.copy(v) for k, v in a.state_dict().items()}, a.meta_state())
+    for _ in range(4):
+        ra, rb = a.step(np.array([1, 2, 0])), b.step(np.array([1, 2, 0]))
+        np.testing.assert_array_equal(ra.frames, rb.frames)
+        np.testing.assert_array_equal(ra.rewards, rb.rewards)
+    with pytest.raises(TypeError, match="reward_fn must be callable"):
+        Flights("basic", 2, config=FlightsConfig(n_worlds=1), reward_fn=1.0)
+    with pytest.raises(TypeError, match="depth_fn must be callable"):
+        Flights("basic", 2, config=FlightsConfig(n_worlds=1), depth_fn="noise")
 
 
 def test_training_smoke_and_exact_resume(tmp_path):
@@ -329,9 +336,10 @@ def test_reactive_rule_reads_the_rows_around_the_camera_horizon():
 
 
 def test_the_camera_must_match_the_depth_model_and_the_q_nets(tmp_path):
-    """A raised horizon (FlightsConfig.horizon_row) reaches the flights' camera; a depth
+    """A raised horizon (Camera(horizon_row=...)) reaches the flights' camera; a depth
     model or a Q-net trained with another camera is refused by name."""
-    fl = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, horizon_row=4))
+    fl = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2),
+                 camera=Camera(horizon_row=4))
     assert fl.camera.cy == 4.0
     fl.reset()
     depth, _, _ = fl.observe()
@@ -345,7 +353,7 @@ def test_the_camera_must_match_the_depth_model_and_the_q_nets(tmp_path):
             return np.ones(rgb.shape[:3], np.float32)
     with pytest.raises(ValueError, match="trained on frames with the horizon at row 15.5"):
         Flights("basic", 2, seed=0, depth="pred", depth_estimator=Estimator(),
-                config=FlightsConfig(n_worlds=2, horizon_row=4))
+                config=FlightsConfig(n_worlds=2), camera=Camera(horizon_row=4))
     p = argparse.ArgumentParser()
     commands.add_arguments_train_agent(p)
     args = p.parse_args(["--smoke", "--quiet", "--horizon-row", "4",
@@ -370,51 +378,19 @@ def test_the_camera_must_match_the_depth_model_and_the_q_nets(tmp_path):
             commands.run_evaluate(bad)
 
 
-def test_frame_encodings():
-    """Depth: metres / 10 m, clipped. Inverse depth: 0.5 m / metres, clipped to [0.05, 1]
-    (1 at the safety distance and nearer, 0.05 at 10 m and beyond)."""
+def test_frames_are_depth_over_max_depth():
+    """The Q-net reads the paper's depth maps: metres / 10 m, clipped to [0, 1]; at reset,
+    after a step and for a privileged teacher alike."""
     d = np.array([0.0, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 30.0], np.float32)
-    np.testing.assert_allclose(encode_depth(d, "depth"), np.minimum(d, 10) / 10, atol=1e-7)
-    np.testing.assert_allclose(encode_depth(d, "inverse"),
-                               [1, 1, 1, 0.5, 0.25, 0.1, 0.05, 0.05], atol=1e-7)
-    assert encode_depth(d, "inverse").dtype == np.float32
-    with pytest.raises(ValueError, match="encoding must be one of"):
-        encode_depth(d, "disparity")
-    with pytest.raises(ValueError, match="config.encoding must be one of .* got 'log'"):
-        Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, encoding="log"))
-    fl = Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=2, encoding="inverse"))
+    np.testing.assert_allclose(encode_depth(d), np.minimum(d, 10) / 10, atol=1e-7)
+    assert encode_depth(d).dtype == np.float32
+    np.testing.assert_allclose(encode_depth(d, 5.0), np.minimum(d, 5) / 5, atol=1e-7)
+    fl = Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=2))
     frames = fl.reset()
-    np.testing.assert_array_equal(frames, encode_depth(fl.last_depth, "inverse"))
+    np.testing.assert_array_equal(frames, encode_depth(fl.last_depth))
     np.testing.assert_array_equal(fl.gt_frames(), frames)
     res = fl.step(np.zeros(3, np.int64))
-    np.testing.assert_array_equal(res.final_frames, encode_depth(fl.last_depth, "inverse"))
-
-
-def test_depth_noise_is_a_smooth_seeded_log_depth_error(tmp_path):
-    """--depth-noise: observed depth = depth * exp(a + b(column) + c(row)), drawn from the
-    flights' generator; off by default, same seed same error, bad values refused, and
-    the training config records it."""
-    cfg = FlightsConfig(n_worlds=2)
-    clean = Flights("basic", 4, seed=3, config=cfg)
-    clean.reset()
-    noisy = [Flights("basic", 4, seed=3, config=FlightsConfig(n_worlds=2, depth_noise=0.15))
-             for _ in range(2)]
-    for fl in noisy:
-        fl.reset()
-    np.testing.assert_array_equal(noisy[0].last_depth, noisy[1].last_depth)
-    e = np.log(noisy[0].last_depth.astype(np.float64) / clean.last_depth)
-    assert 0.05 < e.std() < 0.3
-    # a sum of a row part and a column part: every mixed second difference vanishes
-    mixed = e[:, 1:, 1:] - e[:, 1:, :-1] - e[:, :-1, 1:] + e[:, :-1, :-1]
-    assert np.abs(mixed).max() < 1e-5
-    # smooth along the columns: neighbours differ by much less than the spread
-    assert np.abs(np.diff(e, axis=2)).max() < 0.5 * e.std()
-    assert not np.allclose(e[0], e[1])                 # each frame its own error
-    for bad in (-0.1, 1.0, float("nan"), True, "0.1"):
-        with pytest.raises(ValueError, match="depth_noise"):
-            Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, depth_noise=bad))
-    meta = smoke_train_meta(tmp_path / "run", "--depth-noise", "0.1")
-    assert meta["train_config"]["flights"]["depth_noise"] == 0.1
+    np.testing.assert_array_equal(res.final_frames, encode_depth(fl.last_depth))
 
 
 def test_evaluate_warns_about_a_snapshot_of_an_unfinished_run():
@@ -429,39 +405,6 @@ def test_evaluate_warns_about_a_snapshot_of_an_unfinished_run():
     assert commands.unfinished_warning(StraightPolicy()) is None
     msg = commands.unfinished_warning(Net(160000, 240000))
     assert "snapshot at 160000 of its run's 240000" in msg
-
-
-def test_the_encoding_travels_with_the_q_net(tmp_path):
-    """train-agent --encoding records it; evaluate takes it from the net; a net is never
-    fed frames of another encoding (fine-tune, ensemble), and old nets read depth."""
-    assert commands.model_encoding({"train_config": {"flights": {"max_depth": 10.0}}}) == "depth"
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    run = tmp_path / "inv"
-    assert commands.run_train_agent(p.parse_args(["--smoke", "--quiet", "--encoding", "inverse",
-                                                  "--out", str(run)])) == 0
-    model = run / "model.npz"
-    assert commands.model_encoding(QNetPolicy.load(model).meta) == "inverse"
-    again = p.parse_args(["--smoke", "--quiet", "--init-model", str(model), "--out",
-                          str(tmp_path / "ft")])
-    assert commands.run_train_agent(again) == 0                # the init model's, by default
-    assert commands.model_encoding(QNetPolicy.load(tmp_path / "ft" / "model.npz").meta) \
-        == "inverse"
-    with pytest.raises(SystemExit, match="trained on 'inverse' frames, but these flights "
-                                         "give 'depth'"):
-        commands.run_train_agent(p.parse_args(["--smoke", "--quiet", "--init-model", str(model),
-                                               "--encoding", "depth", "--out",
-                                               str(tmp_path / "bad")]))
-    e = argparse.ArgumentParser()
-    commands.add_arguments_evaluate(e)
-    ok = e.parse_args([str(model), "--flights", "2", "--steps", "2", "--quiet",
-                       "--json", str(tmp_path / "r.jsonl")])
-    assert commands.run_evaluate(ok) == 0
-    assert json.loads((tmp_path / "r.jsonl").read_text())["encoding"] == "inverse"
-    if SHIPPED.exists():
-        mixed = e.parse_args([f"{model}+{SHIPPED}", "--flights", "2", "--quiet"])
-        with pytest.raises(SystemExit, match="different frame encodings"):
-            commands.run_evaluate(mixed)
 
 
 def test_recorded_result_picks_the_largest_matching_evaluation(tmp_path):
@@ -510,66 +453,3 @@ def test_conv_channels_widen_the_torso_and_are_checked(tmp_path):
                              "--out", str(tmp_path / "bad")])
         with pytest.raises(SystemExit, match="--conv-channels"):
             commands.run_train_agent(args)
-
-
-def test_scene_overrides_change_the_worlds_and_travel_with_the_run(tmp_path):
-    """--scene KEY=VALUE: the flights' worlds are generated with the changed parameters
-    (here: how many obstacles), bad keys and values are refused naming the flag, and the
-    training config records it so a resumed run flies the same worlds."""
-    parse = commands.parse_scene
-    assert parse([], "basic") is None
-    assert parse(["min_gap=2", "n_obstacles=4,6", "wall_margin=1.5"], "basic") == {
-        "min_gap": 2.0, "n_obstacles": [4, 6], "wall_margin": 1.5}
-    assert parse(["n_obstacles=5"], "basic") == {"n_obstacles": [5, 5]}   # one value: a range of one
-    for bad, says in (("gap=2", "KEY=VALUE"), ("min_gap", "KEY=VALUE"),
-                      ("min_gap=two", "min_gap takes one value"),
-                      ("min_gap=1,2", "min_gap takes one value"),
-                      ("n_obstacles=6,4", "LO,HI"), ("n_obstacles=4.5", "LO,HI"),
-                      ("min_gap=-1", "min_gap takes"), ("min_gap=nan", "finite")):
-        with pytest.raises(SystemExit, match=f"train-agent --scene.*{says}"):
-            parse([bad], "basic", "train-agent --scene")
-    few = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene=parse(
-        ["n_obstacles=2"], "basic")))
-    many = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene=parse(
-        ["n_obstacles=9"], "basic")))
-    assert few.world_seeds.tolist() == many.world_seeds.tolist()   # same seeds, other worlds
-    assert [obstacles(few), obstacles(many)] == [[2, 2], [9, 9]]
-    with pytest.raises(ValueError, match="config.scene has unknown parameter.*'gap'"):
-        Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2, scene={"gap": 2.0}))
-    meta = smoke_train_meta(tmp_path / "run", "--scene", "n_obstacles=3")
-    assert meta["train_config"]["flights"]["scene"] == {"n_obstacles": [3, 3]}
-    tr = Trainer.resume(tmp_path / "run", progress=False)
-    assert obstacles(tr.flights) == [3, 3]
-
-
-def test_scene_mix_changes_that_fraction_of_the_pool_and_travels_with_the_run(tmp_path):
-    """--scene-mix P: round(P * n_worlds) worlds of the pool are built with --scene, the
-    others are the scenario as it is (the same seeds either way); bad fractions, and a mix
-    without --scene, are refused naming the flag; a resumed run rebuilds the same pool."""
-    def as_it_is(seed):                     # obstacles in the scenario's own world of a seed
-        return obstacles([make_scene("basic", int(seed))])[0]
-
-    plain = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=4))
-    mixed = Flights("basic", 2, seed=0, config=FlightsConfig(
-        n_worlds=4, scene={"n_obstacles": [2, 2]}, scene_mix=0.5))
-    assert mixed.world_seeds.tolist() == plain.world_seeds.tolist()
-    assert obstacles(mixed) == [2, 2] + [as_it_is(s) for s in plain.world_seeds[2:]]
-    assert obstacles(plain) == [as_it_is(s) for s in plain.world_seeds]
-    for bad in (-0.1, 1.5, float("nan"), True):
-        with pytest.raises(ValueError, match="config.scene_mix"):
-            Flights("basic", 2, seed=0, config=FlightsConfig(
-                n_worlds=4, scene={"min_gap": 2.0}, scene_mix=bad))
-    with pytest.raises(ValueError, match="config.scene_mix is 0.5 but config.scene is None"):
-        Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=4, scene_mix=0.5))
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    for flags, says in ((["--scene-mix", "1.5", "--scene", "min_gap=2"], "fraction in"),
-                        (["--scene-mix", "nan", "--scene", "min_gap=2"], "fraction in"),
-                        (["--scene-mix", "0.5"], "needs --scene")):
-        with pytest.raises(SystemExit, match=f"train-agent --scene-mix.*{says}"):
-            commands.run_train_agent(p.parse_args(["--smoke", "--quiet", *flags,
-                                                   "--out", str(tmp_path / "bad")]))
-    meta = smoke_train_meta(tmp_path / "run", "--scene", "n_obstacles=3", "--scene-mix", "0.5")
-    assert meta["train_config"]["flights"]["scene_mix"] == 0.5
-    tr = Trainer.resume(tmp_path / "run", progress=False)
-    assert obstacles(tr.flights) == [3, as_it_is(tr.flights.world_seeds[1])]

@@ -10,8 +10,7 @@ from minid3rqn.depth.data import Sequence, collect
 from minid3rqn.depth.evaluate import DepthEstimator, evaluate
 from minid3rqn.depth.train import TrainConfig, Trainer
 from minid3rqn.nets.dispnet import DispNet
-from minid3rqn.rl.flights import Flights, FlightsConfig
-from minid3rqn.world import Camera, render_batch
+from minid3rqn.world import Camera
 
 pytestmark = pytest.mark.depth
 TINY = Camera(16, 24, 90.0)
@@ -89,34 +88,6 @@ def test_training_reads_the_previous_frame_and_is_scored_where_there_is_one(seq)
     assert evaluate(one, seq, with_previous=True)["frames"] == len(idx)
     with pytest.raises(ValueError, match="source offsets must include -1"):
         Trainer(seq, _cfg(prev_frame=True, source_offsets=(1, 2)))
-
-
-def test_flights_hand_a_two_frame_model_the_frame_before(monkeypatch):
-    net = DispNet((8, 16, 16, 16), (8, 8, 8, 8), 1, rng=0, in_frames=2)
-    est = DepthEstimator(net, 2.0)
-    seen = []
-    real = est.predict
-
-    def spy(rgb, batch_size=64, prev=None, motion=None):
-        assert motion is None                       # motion is for a cost volume
-        seen.append((rgb.copy(), prev.copy()))
-        return real(rgb, batch_size, prev)
-
-    monkeypatch.setattr(est, "predict", spy)
-    fl = Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=3), depth="pred",
-                 depth_estimator=est, autoreset=False)
-    fl.reset()
-    start = fl.poses.copy()
-    rgb0, prev0 = seen[-1]
-    # at the start: the view from 0.8 m back along the heading
-    back = start.copy()
-    back[:, 0] -= 0.8 * np.cos(start[:, 2])
-    back[:, 1] -= 0.8 * np.sin(start[:, 2])
-    expect, _ = render_batch(fl.batch, back, fl.camera)
-    np.testing.assert_array_equal(prev0, expect)
-    fl.step(np.zeros(3, np.int64))
-    rgb1, prev1 = seen[-1]
-    np.testing.assert_array_equal(prev1, rgb0)                 # then: the last frame seen
 
 
 def test_train_depth_prev_frame_smoke(tmp_path, capsys):

@@ -366,25 +366,62 @@ def _facing_wall(env, scene_seed=2):
 
 
 @pytest.mark.parametrize("speed", [2.0, 25.0])
-def test_flying_into_a_wall_terminates_never_passes(speed):
-    """Even at 10 m per step (100 sub-steps) the zero-thickness wall stops the drone."""
+def test_flying_into_a_wall_is_caught_at_any_speed(speed):
+    """Even at 10 m per step (100 sub-steps) the zero-thickness wall is a collision on the
+    step whose arc reaches it: every step before ends on the start side, clear of it."""
     env = DroneEnv("channel", seed=1, actions=[[speed, 0.0]], observe=False)
     a, b, normal = _facing_wall(env)
     for _ in range(10):
+        before = np.dot(env.pose[:2] - a, normal)
         _, reward, term, trunc, info = env.step(0)
         side = np.dot(info["pose"][:2] - a, normal)
-        assert side > 0                                   # still on the start side
+        assert side == pytest.approx(before - speed * env.dt)    # the arc flown to its end
         if term:
             break
+        assert side >= 0.5                                # clear of the wall, start side
     assert term and not trunc and info["collided"] and reward == -1.0
-    assert 0.4 <= info["d_nearest"] < 0.5
+    assert before - speed * env.dt < 0.5                  # the arc came within 0.5 m
     with pytest.raises(RuntimeError, match="reset"):
         env.step(0)
+
+
+def test_step_drones_checks_the_whole_arc_and_pays_at_its_end():
+    """step_drones: collision anywhere on the arc; the pose and d_nearest at its end; the
+    reward gets the yaw rate only if it takes a third argument."""
+    from minid3rqn.world import step_drones
+    scene = make_scene("channel", 2)
+    a, b = scene.wall_a[0], scene.wall_b[0]
+    mid = 0.5 * (a + b)
+    normal = np.array([-(b - a)[1], (b - a)[0]]) / np.linalg.norm(b - a)
+    if not scene.in_region(mid + 3.0 * normal):
+        normal = -normal
+    start = mid + 0.8 * normal                  # 0.8 m before the wall, facing it: the
+    yaw = np.arctan2(-normal[1], -normal[0])    # 2 m arc ends 1.2 m beyond it
+    poses = np.array([[start[0], start[1], yaw]] * 2)
+    actions = np.array([[5.0, 0.0], [5.0, 0.5]])
+    batch = SceneBatch([scene, scene])
+    moved = step_drones(poses, actions, np.array([0, 1]), batch)
+    end = integrate_arc(poses, actions[:, 0], actions[:, 1], 0.4)
+    np.testing.assert_allclose(moved.poses, end, atol=1e-12)
+    np.testing.assert_array_equal(moved.d_nearest,
+                                  nearest_distance_batch(batch, end[:, None, :2])[:, 0])
+    assert moved.collided.all()
+    np.testing.assert_array_equal(moved.rewards, [-1.0, -1.0])
+    seen = []
+    moved = step_drones(poses, actions, np.array([0, 1]), batch,
+                        reward_fn=lambda d, c, w: seen.append(w) or np.where(c, -2.0, d))
+    np.testing.assert_array_equal(seen[0], [0.0, 0.5])
+    np.testing.assert_array_equal(moved.rewards, [-2.0, -2.0])
+    moved = step_drones(poses, actions, np.array([1, 0]), batch, reward_fn=lambda d, c: 3.0)
+    np.testing.assert_array_equal(moved.rewards, [3.0, 3.0])
+    with pytest.raises(ValueError, match="one reward per flight"):
+        step_drones(poses, actions, np.array([1, 0]), batch, reward_fn=lambda d, c: [1, 2, 3])
 
 
 def test_action_table_and_reward_hooks():
     env = DroneEnv("basic", seed=0, actions=[[1.0, 0.0], [1.0, 1.0]],
                    reward_fn=lambda d, collided: 42.0 + collided, max_steps=2, observe=False)
+    assert DroneEnv("basic", reward_fn=None).reward_fn is paper_reward
     assert env.action_space.n == 2
     _, info0 = env.reset()
     _, reward, term, trunc, info = env.step(0)

@@ -77,7 +77,7 @@ def _as_float(report, value, what, path):
 
 def check_reward(path) -> Report:
     from ..world import paper_reward
-    from .adapters import accepts_yaw_rate
+    from ..world.stepper import accepts_yaw_rate
 
     def body(m, r):
         fn = get_callable(m, "reward", r, path)
@@ -190,8 +190,8 @@ def check_reward(path) -> Report:
         _, rew, *_ = _call(r, path, "DroneEnv(reward_fn=reward).step(0)", env.step, 0)
         if not math.isfinite(rew):
             r.fail(f"in the environment your reward gave {rew}", stop=True)
-        from .flights import ClassroomFlights
-        fl = ClassroomFlights("basic", 4, seed=0, reward_fn=fn, config=_small_pool())
+        from ..rl.flights import Flights
+        fl = Flights("basic", 4, seed=0, reward_fn=fn, config=_small_pool())
         fl.reset()
         res = _call(r, path, "the training flights' step", fl.step, np.array([0, 1, 3, 4]))
         if not np.all(np.isfinite(res.rewards)):
@@ -798,8 +798,8 @@ def check_depth_errors(path) -> Report:
 
         # it reaches the training flights
         from ..rl.flights import depth_only
-        from .flights import ClassroomFlights
-        fl = ClassroomFlights("basic", 4, seed=0, depth_fn=fn, config=_small_pool())
+        from ..rl.flights import Flights
+        fl = Flights("basic", 4, seed=0, depth_fn=fn, config=_small_pool())
         frames = _call(r, path, "the training flights' reset, with your corrupt", fl.reset)
         _call(r, path, "the training flights' step, with your corrupt", fl.step,
               np.zeros(4, np.int64))

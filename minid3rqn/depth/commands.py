@@ -125,7 +125,7 @@ def run_collect(args) -> int:
 
 def _run_collect_flown(args, out: Path, t0: float) -> int:
     """``collect --pilot QNET``: the frames of a Q-net's own flights."""
-    from ..rl.commands import _estimator_for, encoding_for, horizon_for
+    from ..rl.commands import _estimator_for, horizon_for
     from ..rl.flown_frames import collect_flown
     from ..rl.policies import QNetPolicy
     from .data import save_sequence
@@ -150,8 +150,7 @@ def _run_collect_flown(args, out: Path, t0: float) -> int:
     camera = camera_or_exit("collect", horizon)
     data = collect_flown(policy, args.scenario, args.frames, args.seed, depth=args.pilot_depth,
                          depth_estimator=est, camera=camera,
-                         max_steps=args.frames_per_flight - 1,
-                         encoding=encoding_for("collect", None, [policy]))
+                         max_steps=args.frames_per_flight - 1)
     save_sequence(out, data, {"scenario": args.scenario, "seed": args.seed,
                               "pilot": str(args.pilot), "pilot_epsilon": args.pilot_epsilon,
                               "pilot_depth": args.pilot_depth,

@@ -15,7 +15,6 @@ import numpy as np
 
 from ..depth.commands import add_argument_horizon_row
 from ..io import machine
-from .flights import ENCODINGS
 
 MODELS = Path(__file__).resolve().parent.parent / "models"
 RUNS = Path("runs")
@@ -41,52 +40,6 @@ def load_depth_estimator(path, flip: bool = False):
 
 HORIZON_DEFAULT = "the depth model's, else the Q-nets', else the middle row"
 
-SCENE_HELP = ("ours: change a parameter of the scenario's world generator, KEY=VALUE, or "
-              "KEY=LO,HI for a range (repeatable; the keys and defaults are "
-              "world.scenarios.DEFAULTS), e.g. --scene min_gap=2.0 --scene n_obstacles=16,20")
-
-
-def parse_scene(items, scenario: str, flag: str = "--scene") -> dict | None:
-    """``["min_gap=2.0", "n_obstacles=16,20"]`` -> ``{"min_gap": 2.0, "n_obstacles":
-    [16, 20]}``, each value shaped and typed like the scenario's default (a range stays a
-    range: one number gives [v, v]); None when ``items`` is empty. A bad item is a
-    SystemExit naming ``flag``, the item and what was expected."""
-    from ..world.scenarios import DEFAULTS, SCENARIOS
-    if not items:
-        return None
-    if scenario not in SCENARIOS:
-        raise SystemExit(f"{flag}: unknown scenario {scenario!r}; expected one of {SCENARIOS}")
-    defaults, out = DEFAULTS[scenario], {}
-    for item in items:
-        key, eq, text = str(item).partition("=")
-        if not eq or key not in defaults:
-            raise SystemExit(f"{flag}: expected KEY=VALUE with KEY one of "
-                             f"{sorted(defaults)} (scenario {scenario!r}); got {item!r}")
-        default = defaults[key]
-        kind = type(default[0]) if isinstance(default, tuple) else type(default)
-        try:
-            values = [kind(float(v)) if kind is float else int(v) for v in text.split(",")]
-        except ValueError:
-            values = []
-        if isinstance(default, tuple):
-            if len(values) == 1:
-                values = values * 2
-            ok = len(values) == 2 and values[0] <= values[1]
-        else:
-            ok = len(values) == 1
-        if not ok or not all(np.isfinite(v) and v >= 0 for v in values):
-            shape = "LO,HI (or one value)" if isinstance(default, tuple) else "one value"
-            raise SystemExit(f"{flag}: {key} takes {shape}, finite {kind.__name__}s >= 0 (default "
-                             f"{default}); got {text!r}")
-        out[key] = values if isinstance(default, tuple) else values[0]
-    return out
-
-
-def _trained_flights(meta: dict | None) -> dict:
-    """The FlightsConfig a Q-net was trained with, as saved in its file ({} if none)."""
-    return ((meta or {}).get("train_config") or {}).get("flights") or {}
-
-
 def _q_nets(policies) -> list:
     """The Q-net policies in ``policies`` (an ensemble's members; baselines left out)."""
     return [m for p in policies for m in getattr(p, "members", [p]) if hasattr(m, "qnet")]
@@ -94,7 +47,7 @@ def _q_nets(policies) -> list:
 
 def model_horizon(meta: dict | None) -> float | None:
     """The horizon row a Q-net was trained with (None: the default camera)."""
-    return _trained_flights(meta).get("horizon_row")
+    return ((meta or {}).get("train_config") or {}).get("horizon_row")
 
 
 def horizon_for(command: str, given, est, policies=()) -> float | None:
@@ -124,31 +77,6 @@ def horizon_for(command: str, given, est, policies=()) -> float | None:
                              f"{trained:g}, but these flights have it at row {cy:g} "
                              f"(--horizon-row, or the depth model's)")
     return None if cy == default else cy
-
-
-def model_encoding(meta: dict | None) -> str:
-    """The frame encoding a Q-net was trained with ("depth" for nets from before it)."""
-    return _trained_flights(meta).get("encoding", "depth")
-
-
-def encoding_for(command: str, given, policies=()) -> str:
-    """The frame encoding a command's flights use (``FlightsConfig.encoding``): ``given``
-    (train-agent's ``--encoding``) if not None, else the Q-nets'. Every Q-net must have
-    been trained with it: a net fed inverse depth where it learned depth reads a wall
-    ahead as open space."""
-    nets = _q_nets(policies)
-    found = {model_encoding(getattr(m, "meta", None)) for m in nets}
-    if given is None and len(found) > 1:
-        raise SystemExit(f"{command}: these Q-nets were trained on different frame "
-                         f"encodings ({', '.join(sorted(found))}); fly nets of one together")
-    enc = given if given is not None else (found.pop() if found else "depth")
-    for m in nets:
-        trained = model_encoding(getattr(m, "meta", None))
-        if trained != enc:
-            raise SystemExit(f"{command}: Q-net {m.name!r} was trained on {trained!r} frames, "
-                             f"but these flights give {enc!r} frames (--encoding, or the "
-                             f"other Q-nets')")
-    return enc
 
 
 def unfinished_warning(policy) -> str | None:
@@ -211,19 +139,6 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth-model", default=None, help="DepthEstimator .npz (--depth pred)")
     p.add_argument("--flip-tta", action="store_true", help=FLIP_HELP)
     add_argument_horizon_row(p, HORIZON_DEFAULT)
-    p.add_argument("--encoding", default=None, choices=list(ENCODINGS),
-                   help="what the Q-net reads: 'depth' (the paper's depth maps, / 10 m) or "
-                        "'inverse' (0.5 m / depth; ours). Default: the --init-model's, else "
-                        "depth")
-    p.add_argument("--scene", action="append", default=[], metavar="KEY=VALUE",
-                   help=SCENE_HELP + "; the training worlds only")
-    p.add_argument("--scene-mix", type=float, default=1.0, metavar="P",
-                   help="the fraction of the training worlds built with --scene; the rest "
-                        "are the scenario as it is (ours; default 1: all of them)")
-    p.add_argument("--depth-noise", type=float, default=0.0,
-                   help="training augmentation (ours): std of a smooth random error in log "
-                        "depth put on every frame the Q-net sees (0: none; "
-                        "rl/flights.py, Flights.depth_error)")
     p.add_argument("--init-model", default="", help="start from this Q-net .npz (fine-tune)")
     p.add_argument("--init-widen", action="store_true",
                    help="the --init-model's LSTM is narrower than --hidden: grow it, the new "
@@ -234,10 +149,6 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     p.add_argument("--teachers", default="",
                    help="distil instead of Q-learning (ours; rl/distill.py): the teacher's "
                         "Q-net .npz, or several joined by '+', flown on GT depth")
-    p.add_argument("--base-teachers", default="",
-                   help="in a mixed pool (--scene-mix < 1), a second teacher ('+'-joined "
-                        ".npz files) for the flights in the scenario's own worlds; the "
-                        "--teachers teach in the --scene worlds (ours; rl/distill.py)")
     p.add_argument("--teacher-mix", type=float, default=d.teacher_mix,
                    help="probability of flying the teacher's action at the start (--teachers)")
     p.add_argument("--teacher-mix-steps", type=int, default=d.teacher_mix_steps,
@@ -287,7 +198,6 @@ def config_from_args(args):
                       teachers=args.teachers, teacher_mix=args.teacher_mix,
                       teacher_mix_steps=args.teacher_mix_steps,
                       teacher_mirror=args.teacher_mirror, teacher_depth=args.teacher_depth,
-                      base_teachers=args.base_teachers,
                       distil_kl=args.distil_kl, distil_temperature=args.distil_temperature,
                       mirror_augment=args.mirror_augment)
     if args.conv_channels is not None:
@@ -317,19 +227,6 @@ def config_from_args(args):
     if cfg.init_widen and not cfg.init_model:
         raise SystemExit("train-agent --init-widen: widens the --init-model's LSTM, so it needs "
                          "--init-model")
-    cfg.flights.depth_noise = args.depth_noise
-    cfg.flights.scene = parse_scene(args.scene, args.scenario, "train-agent --scene")
-    if not (np.isfinite(args.scene_mix) and 0.0 <= args.scene_mix <= 1.0):
-        raise SystemExit(f"train-agent --scene-mix: expected a fraction in [0, 1]; got "
-                         f"{args.scene_mix!r}")
-    if args.scene_mix != 1.0 and cfg.flights.scene is None:
-        raise SystemExit(f"train-agent --scene-mix {args.scene_mix:g}: a mixed pool needs "
-                         f"--scene KEY=VALUE (the parameters of its changed worlds)")
-    cfg.flights.scene_mix = args.scene_mix
-    if args.base_teachers and not (cfg.teachers and cfg.flights.scene and args.scene_mix < 1.0):
-        raise SystemExit("train-agent --base-teachers: the teacher of the scenario's own worlds "
-                         "in a mixed pool, so it needs --teachers (for the --scene worlds), "
-                         "--scene KEY=VALUE and --scene-mix < 1")
     if args.distil_kl != 0.0 and not cfg.teachers:
         raise SystemExit(f"train-agent --distil-kl {args.distil_kl:g}: a term of the "
                          f"distillation loss, so it needs --teachers")
@@ -385,8 +282,7 @@ def run_train_agent(args, command: str | None = None) -> int:
     known = [p for p in [cfg.init_model, *cfg.teachers.split("+"),
                          *cfg.base_teachers.split("+")] if p]
     known = [QNetPolicy.load(p) for p in known if Path(p).is_file()]
-    cfg.flights.horizon_row = horizon_for("train-agent", args.horizon_row, est, known)
-    cfg.flights.encoding = encoding_for("train-agent", args.encoding, known)
+    cfg.horizon_row = horizon_for("train-agent", args.horizon_row, est, known)
     t0 = time.time()
     tr = train(cfg, out, depth_estimator=est, progress=not args.quiet, resume=args.resume)
     extra = {"command": command or _command_line(), "seed": cfg.seed,
@@ -494,8 +390,6 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
                    help="Q-nets: each also flies the left-right mirrored view, and the "
                         "policy is greedy on the mean Q-values of all (a free two-member "
                         "ensemble per net; docs/d3rqn.md section 10)")
-    p.add_argument("--scene", action="append", default=[], metavar="KEY=VALUE",
-                   help=SCENE_HELP)
     add_argument_horizon_row(p, HORIZON_DEFAULT)
     p.add_argument("--validation", action="store_true",
                    help="fly the validation worlds instead of the test worlds (a disjoint "
@@ -515,14 +409,15 @@ def _what_flew(spec: str, depth: str, est, mirror: bool) -> str:
     return f"  {spec} ({', '.join(how + (['mirror'] if mirror else []))})"
 
 
-def evaluate_one(spec: str, args, est, scene) -> tuple:
+def evaluate_one(spec: str, args, est) -> tuple:
     """Fly one policy of an ``evaluate`` command (``args`` as parsed, ``est`` its depth
-    estimator, ``scene`` its parsed --scene): print its line, and return the result and
-    the record ``--json`` appends (``reproduce`` calls this too, so its figures are the
-    ``evaluate`` command's)."""
+    estimator): print its line, and return the result and the record ``--json`` appends
+    (``reproduce`` calls this too, so its figures are the ``evaluate`` command's)."""
+    from functools import partial
+    from ..world import Camera
     from .evaluate import evaluate_policy
+    from .flights import Flights
     from .policies import ReactivePolicy
-    from .flights import FlightsConfig
     pol = make_policy(spec, args.seed, window=args.window if spec not in BASELINES else None,
                       mirror=args.mirror)
     row = horizon_for("evaluate", args.horizon_row, est, [pol])
@@ -531,26 +426,24 @@ def evaluate_one(spec: str, args, est, scene) -> tuple:
         print(warning, file=sys.stderr, flush=True)
     if isinstance(pol, ReactivePolicy):      # it reads the rows around the horizon
         pol.horizon_row = row
-    cfg = FlightsConfig(horizon_row=row, encoding=encoding_for("evaluate", None, [pol]),
-                        scene=scene)
     res = evaluate_policy(pol, args.scenario, args.flights, args.seed, args.steps,
                           args.chunk, args.depth, est, progress=not args.quiet,
-                          workers=args.workers, flights_config=cfg,
+                          workers=args.workers,
+                          flights_factory=partial(Flights, camera=Camera(horizon_row=row)),
                           world_set="validation" if args.validation else "test")
     print(res.line() + _what_flew(spec, args.depth, est, args.mirror), flush=True)
     record = {**res.to_dict(), "spec": spec,
               "depth_flip": bool(est is not None and est.flip),
               "mirror": bool(args.mirror and spec not in BASELINES),
-              "horizon_row": row, "encoding": cfg.encoding, "scene": scene,
+              "horizon_row": row,
               "unfinished": warning is not None, "command": _command_line()}
     return res, record
 
 
 def run_evaluate(args) -> int:
     est = _estimator_for(args.depth, args.depth_model, args.scenario, args.flip_tta)
-    scene = parse_scene(args.scene, args.scenario, "evaluate --scene")
     for spec in args.policies:
-        _, record = evaluate_one(spec, args, est, scene)
+        _, record = evaluate_one(spec, args, est)
         if args.json:
             with open(args.json, "a") as f:
                 f.write(json.dumps(record) + "\n")
@@ -601,7 +494,7 @@ def run_fly(args) -> int:
     nets = [QNetPolicy.load(part, "D3RQN") for part in model.split("+")]
     row = horizon_for("fly", args.horizon_row, est, nets)
     out = fly(nets, est, args.scenario, seed, args.flights, args.gif, args.steps,
-              mirror=args.mirror, horizon_row=row, encoding=encoding_for("fly", None, nets))
+              mirror=args.mirror, horizon_row=row)
     print(json.dumps(out))
     by_world = "" if out["ci95_by_world"] is None else \
         f"; by world {out['ci95_by_world'][0]:.2f}-{out['ci95_by_world'][1]:.2f}, " \

@@ -56,15 +56,13 @@ def flown_poses(policy, flights: Flights, max_steps: int) -> list[np.ndarray]:
 
 def collect_flown(policy, scenario: str = "basic", n_frames: int = 15000, seed: int = 0,
                   depth: str = "pred", depth_estimator=None, camera: Camera | None = None,
-                  max_steps: int = 49, chunk: int = 64, encoding: str = "depth",
-                  progress: bool = True) -> dict:
+                  max_steps: int = 49, chunk: int = 64, progress: bool = True) -> dict:
     """``n_frames`` frames of ``policy``'s own flights in training worlds of ``scenario``.
 
     Returns the arrays of a sequence file (``depth.data.save_sequence``). Flights shorter
     than 3 frames (no triplet) are dropped, and the last flight is cut to fit, so the
     total can be up to 2 frames short of ``n_frames`` (as with ``collect``).
-    ``max_steps`` actions give at most ``max_steps + 1`` frames per flight;
-    ``encoding``: the frames the policy reads (``FlightsConfig.encoding``).
+    ``max_steps`` actions give at most ``max_steps + 1`` frames per flight.
     """
     from ..depth.data import FRAME_DT, _render
     from ..world.kinematics import ACTION_INTERVAL, ACTIONS
@@ -78,8 +76,7 @@ def collect_flown(policy, scenario: str = "basic", n_frames: int = 15000, seed: 
         raise ValueError("collect_flown: the depth data expects one frame per 0.4 s at "
                          "2 m/s; the world's action table no longer flies that")
     camera = camera or Camera()
-    cfg = FlightsConfig(n_worlds=chunk, max_steps=max_steps, horizon_row=camera.horizon_row,
-                        encoding=encoding)
+    cfg = FlightsConfig(n_worlds=chunk, max_steps=max_steps)
     rgb, gt, pose, flight = [], [], [], []
     total = 0
     bar = None

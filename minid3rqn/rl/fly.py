@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from .. import viz
-from ..world import render_batch, topdown
+from ..world import Camera, render_batch, topdown
 from .evaluate import by_world, run_flights, wilson_interval
 from .flights import Flights, FlightsConfig
 from .policies import EnsemblePolicy, QNetPolicy
@@ -20,27 +20,23 @@ ACTION_NAMES = ["0", "+.25", "-.25", "+.5", "-.5"]
 
 def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flights: int = 200,
         gif="fly.gif", max_steps: int = 50, mirror: bool = False,
-        horizon_row: float | None = None, encoding: str | None = None) -> dict:
+        horizon_row: float | None = None) -> dict:
     """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate.
     ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q), or
     the loaded ``QNetPolicy`` list;
     ``mirror``: each net also flies the mirrored view (``QNetPolicy.mirrored``);
-    ``horizon_row``: the camera's (``Camera.horizon_row``; None: the middle row);
-    ``encoding``: the frames' (``FlightsConfig.encoding``; None: the nets')."""
+    ``horizon_row``: the camera's (``Camera.horizon_row``; None: the middle row)."""
     t0 = time.time()
     members = list(model) if isinstance(model, (list, tuple)) else \
         [QNetPolicy.load(part, "D3RQN") for part in str(model).split("+")]
-    if encoding is None:
-        from .commands import encoding_for
-        encoding = encoding_for("fly", None, members)
     if mirror:
         members += [m.mirrored() for m in members]
     policy = members[0] if len(members) == 1 else EnsemblePolicy(members)
     depth = "pred" if depth_estimator is not None else "gt"
     flights = Flights(scenario, n_flights, seed=seed, depth=depth,
                       depth_estimator=depth_estimator, autoreset=False,
-                      config=FlightsConfig(max_steps=max_steps, test_worlds=True,
-                                           horizon_row=horizon_row, encoding=encoding))
+                      camera=Camera(horizon_row=horizon_row),
+                      config=FlightsConfig(max_steps=max_steps, test_worlds=True))
     frames_out, path, crashed = [], [], [False]
     max_depth = flights.cfg.max_depth
 

@@ -322,7 +322,7 @@ def _evaluate_cli(spec: str, scenario: str, budget: dict, seed: int, depth: str,
         argv += ["--depth-model", str(depth_model)]
     args = p.parse_args(argv)
     est = _estimator_for(args.depth, args.depth_model, scenario)
-    _, record = evaluate_one(spec, args, est, None)
+    _, record = evaluate_one(spec, args, est)
     return {**record, "command": "python -m minid3rqn evaluate " + " ".join(argv)}
 
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..io import load_npz, save_npz
 from ..nets.qnet import QNetConfig
+from ..world import Camera
 from .agent import Agent, AgentConfig, FrameStacker
 from .flights import Flights, FlightsConfig
 from .replay import EpisodeReplay
@@ -51,6 +52,8 @@ class TrainConfig:
     conv_channels: list | None = None  # ours: out channels of the conv layers (None: the
                                        # QNetConfig's 4, 8, 8; kernels and strides stay)
     depth: str = "gt"              # gt | pred (the DispNet's depth maps)
+    horizon_row: float | None = None  # ours: the camera's horizon row (Camera.horizon_row;
+                                      # None: the middle row; docs/depth.md section 7)
     log_every: int = 2_000         # transitions between learning-curve rows
     checkpoint_every: int = 10_000  # transitions between checkpoints
     init_model: str = ""           # start from these Q-net weights (fine-tuning), if set
@@ -180,7 +183,8 @@ class Trainer:
         net_seed, world_seed, act_seed, replay_seed = (int(s.generate_state(1)[0])
                                                        for s in ss.spawn(4))
         self.flights = Flights(cfg.scenario, cfg.n_envs, seed=world_seed, config=cfg.flights,
-                               depth=cfg.depth, depth_estimator=depth_estimator)
+                               depth=cfg.depth, depth_estimator=depth_estimator,
+                               camera=Camera(horizon_row=cfg.horizon_row))
         self.frame_shape = self.flights.frame_shape
         self.agent = Agent(cfg.qnet_config(self.flights.n_actions, self.frame_shape),
                            cfg.agent, rng=net_seed)

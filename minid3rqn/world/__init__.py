@@ -1,9 +1,10 @@
 """The 2.5D world: scenes, a pinhole ray-casting camera, the drone environment.
 
 Flow: ``make_scene`` builds a world (pymunk shapes + NumPy arrays); ``render`` /
-``render_batch`` ray-cast RGB and ground-truth depth through a ``Camera``; ``DroneEnv`` /
-``VecDroneEnv`` fly the drone (actions, reward, collision); the policies fly baselines;
-``topdown`` draws a map; ``calibrate`` measures baseline success rates.
+``render_batch`` ray-cast RGB and ground-truth depth through a ``Camera``; ``step_drones``
+steps every drone (the arc flown, collision, reward), and ``VecDroneEnv`` / ``DroneEnv``
+are the environment around it; the policies fly baselines; ``topdown`` draws a map;
+``calibrate`` measures baseline success rates.
 """
 from .camera import Camera
 from .distance import (ClearanceField, clearance_field, nearest_distance, nearest_distance_batch,
@@ -17,6 +18,7 @@ from .policies import (Oracle, oracle_action, oracle_policy, pilot_policy, rando
 from .renderer import render, render_batch, render_depth_batch
 from .scenarios import SCENARIOS, make_scene
 from .scene import Scene, SceneBatch
+from .stepper import step_drones
 from .topview import topdown
 from ..viz import depth_to_rgb, write_gif as save_gif  # re-exported for convenience
 
@@ -25,9 +27,10 @@ __all__ = [
     "nearest_distance", "nearest_distance_batch", "pymunk_nearest_distance",
     "ClearanceField", "clearance_field", "sample_start_pose", "pose_to_camera_transform",
     "relative_transform", "backproject", "project", "inverse_warp_numpy", "ACTIONS",
-    "ACTION_INTERVAL", "SAFE_DISTANCE", "integrate_arc", "paper_reward", "Discrete", "Box",
-    "DroneEnv", "VecDroneEnv", "straight_policy", "random_policy", "Oracle", "oracle_policy",
-    "oracle_action", "pilot_policy", "topdown", "depth_to_rgb", "save_gif", "calibrate",
+    "ACTION_INTERVAL", "SAFE_DISTANCE", "integrate_arc", "paper_reward", "step_drones",
+    "Discrete", "Box", "DroneEnv", "VecDroneEnv", "straight_policy", "random_policy", "Oracle",
+    "oracle_policy", "oracle_action", "pilot_policy", "topdown", "depth_to_rgb", "save_gif",
+    "calibrate",
 ]
 
 

@@ -1,48 +1,49 @@
-"""The quadrotor environment, one flight (``DroneEnv``) or N flights at once (``VecDroneEnv``).
+"""The quadrotor environment: N flights at once (``VecDroneEnv``), or one (``DroneEnv``).
 
 Gymnasium conventions without the dependency:
 
     obs, info = env.reset(seed=None, options=None)
     obs, reward, terminated, truncated, info = env.step(action)
 
-One step. The action index picks a row (v, omega) of the action table; the drone flies
-the exact arc for ``dt`` seconds (``kinematics.integrate_arc``), checked for collision at
-``n_sub`` equally spaced points no more than 0.1 m of arc apart. If any point has
-d_nearest < ``safe_distance`` the drone stops at the first such point and the episode
-terminates (a wall cannot be tunnelled through: every point of the path is within 0.05 m
-of a checked point). Otherwise it ends at the arc's end. Then
+One step is ``stepper.step_drones``, the step of every flight in the package (the
+Q-learning flights, ``rl.flights.Flights``, take it too). The action index picks a row
+(v, omega) of the action table; the drone flies the exact arc for ``dt`` seconds,
+checked for collision every 0.1 m of arc, and ends at the arc's end:
 
-    reward = reward_fn(d_nearest at the new pose, collided)     (paper: d or -1)
+    collided = (clearance < safe_distance somewhere on the arc),
+    reward = reward_fn(d_nearest at the arc's end, collided[, yaw_rate])   (paper: d or -1)
     terminated = collided,    truncated = (steps == max_steps) and not collided.
+
+A collision ends the episode where the arc ends, which may be past the obstacle hit.
 
 Observation: the RGB frame (H, W, 3) uint8 from the new pose. ``info`` holds "pose"
 (x, y, yaw), "depth" (H, W) float32 ground truth, "d_nearest", "collided", "step" and
-"scene_seed".
+"scene_seed" (``VecDroneEnv``: one row per flight).
 
-Worlds. Every ``reset`` generates a fresh world from the environment's generator (for
+Worlds. Every ``reset`` generates a fresh world from the flight's generator (for
 training diversity; ``episodes_per_world=k`` keeps each world for k episodes, since a
 new world costs about as much as a few dozen steps) unless ``options`` say otherwise:
     {"scene_seed": k}   this scenario's world number k;
     {"new_world": False} keep the current world (a new start pose only);
     {"pose": (x, y, yaw)} start there instead of a random free start pose.
-``reset(seed=s)`` re-seeds the generator first, so a seed fixes worlds and starts.
+``reset(seed=s)`` re-seeds the generators first, so a seed fixes worlds and starts.
 
 Changing the actions or the reward is one constructor argument:
     DroneEnv(actions=[[2.0, 0.0], [2.0, 0.3], [2.0, -0.3]], reward_fn=my_reward)
-where ``my_reward(d_nearest, collided)`` must accept NumPy arrays too (VecDroneEnv calls
-it once per step for all flights).
+where ``my_reward(d_nearest, collided)``, or ``my_reward(d_nearest, collided, yaw_rate)``
+(the yaw rate of the action flown), is called with arrays, one entry per flight.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .camera import Camera
-from .distance import nearest_distance_batch, pymunk_nearest_distance, sample_start_pose
-from .kinematics import (ACTION_INTERVAL, ACTIONS, MAX_SUBSTEP, SAFE_DISTANCE,
-                         check_action_table, n_substeps, paper_reward, substep_poses)
+from .distance import nearest_distance_batch, sample_start_pose
+from .kinematics import ACTION_INTERVAL, ACTIONS, SAFE_DISTANCE, check_action_table
 from .renderer import render_batch
 from .scenarios import SCENARIOS, make_scene
 from .scene import SceneBatch
+from .stepper import check_reward_fn, step_drones
 
 SCENE_SEED_RANGE = 2 ** 31
 
@@ -88,10 +89,7 @@ def _check_common(scenario, camera, actions, reward_fn, max_steps, safe_distance
     if not isinstance(camera, Camera):
         raise TypeError(f"{name}: camera must be a Camera or None; got {type(camera).__name__}")
     actions = check_action_table(ACTIONS if actions is None else actions, f"{name}: actions")
-    reward_fn = paper_reward if reward_fn is None else reward_fn
-    if not callable(reward_fn):
-        raise TypeError(f"{name}: reward_fn must be callable (d_nearest, collided) -> reward; "
-                        f"got {type(reward_fn).__name__}")
+    reward_fn = check_reward_fn(reward_fn, name)
     _check_positive_int(max_steps, f"{name}: max_steps")
     if not safe_distance >= 0:
         raise ValueError(f"{name}: safe_distance must be >= 0; got {safe_distance!r}")
@@ -106,7 +104,8 @@ def _check_positive_int(value, name):
     return int(value)
 
 
-def _check_options(options, name):
+def _check_options(options, n, name):
+    """``options`` as a dict, with "pose" as (n, 3) finite start poses."""
     if options is None:
         return {}
     if not isinstance(options, dict):
@@ -115,132 +114,37 @@ def _check_options(options, name):
     if unknown:
         raise ValueError(f"{name}: unknown option(s) {sorted(unknown)}; expected some of "
                          f"['new_world', 'pose', 'scene_seed']")
+    if "pose" in options:
+        try:
+            poses = np.broadcast_to(np.asarray(options["pose"], np.float64), (n, 3))
+        except (TypeError, ValueError):
+            poses = None
+        if poses is None or not np.all(np.isfinite(poses)):
+            raise ValueError(f"{name}: options['pose'] must be 3 finite numbers (x, y, yaw), "
+                             f"or one such row per flight ({n}, 3); got {options['pose']!r}")
+        options = {**options, "pose": poses}
     return options
-
-
-class DroneEnv:
-    """One flight in one world (module docstring).
-
-    Args:
-        scenario: one of SCENARIOS.
-        seed: int (or sequence of ints) seeding the generator of worlds and starts.
-        camera: Camera (default 32x104, 90 deg).
-        actions: (n_actions, 2) table of (forward speed m/s, yaw rate rad/s); default ACTIONS.
-        reward_fn: (d_nearest, collided) -> reward; default ``paper_reward``.
-        max_steps: steps before truncation (50, the paper's success criterion).
-        safe_distance: collision threshold on d_nearest (0.5 m, paper).
-        dt: seconds per action (0.4, paper).
-        scene_overrides: dict of scenario parameters passed to ``make_scene``.
-        observe: render obs and GT depth (False skips rendering: obs is None).
-        episodes_per_world: episodes flown in each generated world (1: a new world
-            every reset).
-    """
-
-    def __init__(self, scenario: str = "basic", seed=0, camera: Camera | None = None,
-                 actions=None, reward_fn=None, max_steps: int = 50,
-                 safe_distance: float = SAFE_DISTANCE, dt: float = ACTION_INTERVAL,
-                 scene_overrides: dict | None = None, observe: bool = True,
-                 episodes_per_world: int = 1):
-        self.camera, self.actions, self.reward_fn = _check_common(
-            scenario, camera, actions, reward_fn, max_steps, safe_distance, dt, "DroneEnv")
-        self.scenario, self.max_steps = scenario, int(max_steps)
-        self.safe_distance, self.dt = float(safe_distance), float(dt)
-        self.scene_overrides = dict(scene_overrides or {})
-        self.observe = bool(observe)
-        self.episodes_per_world = _check_positive_int(episodes_per_world, "DroneEnv: "
-                                                      "episodes_per_world")
-        self.episodes = 0
-        self.n_sub = n_substeps(self.actions, self.dt, MAX_SUBSTEP)
-        self.action_space = Discrete(len(self.actions))
-        self.observation_space = Box(0, 255, (self.camera.height, self.camera.width, 3), np.uint8)
-        self.rng = np.random.default_rng(seed)
-        self.scene = None
-        self.scene_seed = None
-        self.pose = None
-        self.steps = 0
-        self.done = True
-
-    # Policies read the state as N = 1 flights.
-    @property
-    def scenes(self):
-        return [self.scene]
-
-    @property
-    def poses(self) -> np.ndarray:
-        return self.pose[None].copy()
-
-    def reset(self, seed=None, options=None):
-        """Start a new flight: (obs, info). See the module docstring for ``options``."""
-        options = _check_options(options, "DroneEnv.reset")
-        if seed is not None:
-            self.rng = np.random.default_rng(seed)
-            self.episodes = 0
-        scene_seed = int(self.rng.integers(SCENE_SEED_RANGE))       # always drawn: keeps
-        if "scene_seed" in options:                                  # the stream aligned
-            scene_seed = int(options["scene_seed"])
-        due = self.episodes % self.episodes_per_world == 0
-        if options.get("new_world", due or "scene_seed" in options) or self.scene is None:
-            self.scene = make_scene(self.scenario, scene_seed, **self.scene_overrides)
-            self.scene_seed = scene_seed
-        self.episodes += 1
-        if "pose" in options:
-            start = np.asarray(options["pose"], dtype=np.float64)
-            if start.shape != (3,) or not np.all(np.isfinite(start)):
-                raise ValueError(f"DroneEnv.reset: options['pose'] must be 3 finite numbers "
-                                 f"(x, y, yaw); got {options['pose']!r}")
-        else:
-            start = sample_start_pose(self.scene, self.rng, self.actions, self.dt,
-                                      self.safe_distance)
-        self.pose = start.copy()
-        self.steps = 0
-        self.done = False
-        d = float(pymunk_nearest_distance(self.scene, self.pose[:2]))
-        return self._observe(d, False)
-
-    def _observe(self, d, collided):
-        info = {"pose": self.pose.copy(), "d_nearest": d, "collided": collided,
-                "step": self.steps, "scene_seed": self.scene_seed}
-        obs = None
-        if self.observe:
-            rgb, depth = render_batch(self.scene, self.pose[None], self.camera)
-            obs, info["depth"] = rgb[0], depth[0]
-        return obs, info
-
-    def step(self, action):
-        """Fly one action: (obs, reward, terminated, truncated, info)."""
-        if self.done:
-            raise RuntimeError("DroneEnv.step: the episode has ended (or never started); "
-                               "call reset() first")
-        if not self.action_space.contains(action):
-            raise ValueError(f"DroneEnv.step: action must be an int in [0, {self.action_space.n});"
-                             f" got {action!r}")
-        v, omega = self.actions[int(action)]
-        path = substep_poses(self.pose[None], np.array([v]), np.array([omega]), self.dt,
-                             self.n_sub)[0]                          # (n_sub, 3)
-        d_path = pymunk_nearest_distance(self.scene, path[:, :2])
-        hits = np.flatnonzero(d_path < self.safe_distance)
-        collided = len(hits) > 0
-        k = int(hits[0]) if collided else self.n_sub - 1
-        self.pose = path[k].copy()
-        self.steps += 1
-        d = float(d_path[k])
-        reward = float(self.reward_fn(d, collided))
-        terminated = collided
-        truncated = (not collided) and self.steps >= self.max_steps
-        self.done = terminated or truncated
-        obs, info = self._observe(d, collided)
-        return obs, reward, terminated, truncated, info
 
 
 class VecDroneEnv:
     """N flights stepped together: batched kinematics, distances and rendering.
 
-    Flight i is the flight of ``DroneEnv(scenario, seed=[seed, first_index + i], ...)``:
-    same worlds, starts and, for the same actions, the same trajectories (distances come
-    from ``nearest_distance_batch``, which matches pymunk's to rounding).
-
-    Args: as DroneEnv, plus
+    Args:
         n_envs: number of flights N.
+        scenario: one of SCENARIOS.
+        seed: int; flight i draws its worlds and starts from
+            ``np.random.default_rng([seed, first_index + i])``.
+        camera: Camera (default 32x104, 90 deg).
+        actions: (n_actions, 2) table of (forward speed m/s, yaw rate rad/s); default ACTIONS.
+        reward_fn: (d_nearest, collided[, yaw_rate]) -> reward, on arrays; default
+            ``paper_reward``.
+        max_steps: steps before truncation (50, the paper's success criterion).
+        safe_distance: collision threshold on the clearance (0.5 m, paper).
+        dt: seconds per action (0.4, paper).
+        scene_overrides: dict of scenario parameters passed to ``make_scene``.
+        observe: render obs and GT depth (False skips rendering: obs is None).
+        episodes_per_world: episodes flown in each generated world (1: a new world
+            every reset).
         autoreset: when a flight ends, start its next episode in the same ``step`` call
             (its last obs, pose and depth go to info["final_obs"], ["final_pose"],
             ["final_depth"], marked by info["done"]). Without autoreset an ended flight
@@ -254,29 +158,27 @@ class VecDroneEnv:
     "d_nearest" (N,), "collided" (N,), "step" (N,), "scene_seed" (N,).
     """
 
-    def __init__(self, n_envs: int, scenario: str = "basic", seed: int = 0,
+    def __init__(self, n_envs: int, scenario: str = "basic", seed=0,
                  camera: Camera | None = None, actions=None, reward_fn=None, max_steps: int = 50,
                  safe_distance: float = SAFE_DISTANCE, dt: float = ACTION_INTERVAL,
                  scene_overrides: dict | None = None, observe: bool = True,
                  episodes_per_world: int = 1, autoreset: bool = True, first_index: int = 0):
-        if isinstance(n_envs, bool) or not isinstance(n_envs, (int, np.integer)) or n_envs < 1:
-            raise ValueError(f"VecDroneEnv: n_envs must be an int >= 1; got {n_envs!r}")
+        name = type(self).__name__
+        self.n_envs = _check_positive_int(n_envs, f"{name}: n_envs")
         self.camera, self.actions, self.reward_fn = _check_common(
-            scenario, camera, actions, reward_fn, max_steps, safe_distance, dt, "VecDroneEnv")
-        self.n_envs, self.scenario, self.max_steps = int(n_envs), scenario, int(max_steps)
+            scenario, camera, actions, reward_fn, max_steps, safe_distance, dt, name)
+        self.scenario, self.max_steps = scenario, int(max_steps)
         self.safe_distance, self.dt = float(safe_distance), float(dt)
         self.scene_overrides = dict(scene_overrides or {})
         self.observe, self.autoreset = bool(observe), bool(autoreset)
-        self.episodes_per_world = _check_positive_int(episodes_per_world, "VecDroneEnv: "
-                                                      "episodes_per_world")
-        self.episodes = np.zeros(int(n_envs), np.int64)
-        self.seed, self.first_index = seed, int(first_index)
-        self.n_sub = n_substeps(self.actions, self.dt, MAX_SUBSTEP)
+        self.episodes_per_world = _check_positive_int(episodes_per_world,
+                                                      f"{name}: episodes_per_world")
+        self.first_index = int(first_index)
         self.action_space = Discrete(len(self.actions))
         self.observation_space = Box(0, 255, (self.n_envs, self.camera.height,
                                               self.camera.width, 3), np.uint8)
-        self.rngs = [np.random.default_rng([seed, self.first_index + i])
-                     for i in range(self.n_envs)]
+        self._seed(seed)
+        self.episodes = np.zeros(self.n_envs, np.int64)
         self.scenes = [None] * self.n_envs
         self.batch = None
         self.scene_seeds = np.zeros(self.n_envs, np.int64)
@@ -285,10 +187,14 @@ class VecDroneEnv:
         self.active = np.zeros(self.n_envs, bool)
         self._last = None
 
+    def _seed(self, seed):
+        self.rngs = [np.random.default_rng([seed, self.first_index + i])
+                     for i in range(self.n_envs)]
+
     def _reset_one(self, i, options):
         rng = self.rngs[i]
-        scene_seed = int(rng.integers(SCENE_SEED_RANGE))
-        if "scene_seed" in options:
+        scene_seed = int(rng.integers(SCENE_SEED_RANGE))             # always drawn: keeps
+        if "scene_seed" in options:                                  # the stream aligned
             scene_seed = int(np.broadcast_to(options["scene_seed"], (self.n_envs,))[i])
         due = self.episodes[i] % self.episodes_per_world == 0
         if options.get("new_world", due or "scene_seed" in options) or self.scenes[i] is None:
@@ -298,7 +204,7 @@ class VecDroneEnv:
                 self.batch.set(i, self.scenes[i])
         self.episodes[i] += 1
         if "pose" in options:
-            start = np.broadcast_to(np.asarray(options["pose"], np.float64), (self.n_envs, 3))[i]
+            start = options["pose"][i]
         else:
             start = sample_start_pose(self.scenes[i], rng, self.actions, self.dt,
                                       self.safe_distance)
@@ -308,12 +214,10 @@ class VecDroneEnv:
 
     def reset(self, seed=None, options=None):
         """Start all N flights: (obs, info). ``seed`` re-seeds as in the constructor;
-        ``options`` as DroneEnv's, where "scene_seed" and "pose" may be per flight."""
-        options = _check_options(options, "VecDroneEnv.reset")
+        ``options`` as in the module docstring, "scene_seed" and "pose" may be per flight."""
+        options = _check_options(options, self.n_envs, f"{type(self).__name__}.reset")
         if seed is not None:
-            self.seed = seed
-            self.rngs = [np.random.default_rng([seed, self.first_index + i])
-                         for i in range(self.n_envs)]
+            self._seed(seed)
             self.episodes[:] = 0
         for i in range(self.n_envs):
             self._reset_one(i, options)
@@ -331,60 +235,127 @@ class VecDroneEnv:
         self._last = (obs, info)
         return obs, info
 
+    def _check_actions(self, actions) -> np.ndarray:
+        name = f"{type(self).__name__}.step"
+        if self._last is None:
+            raise RuntimeError(f"{name}: call reset() first")
+        a = np.asarray(actions)
+        if a.shape != (self.n_envs,) or a.dtype.kind not in "iu":
+            raise ValueError(f"{name}: actions must be an int array of shape ({self.n_envs},); "
+                             f"got shape {a.shape}, dtype {a.dtype}")
+        if np.any((a < 0) | (a >= self.action_space.n)):
+            raise ValueError(f"{name}: actions must lie in [0, {self.action_space.n}); got "
+                             f"{a[(a < 0) | (a >= self.action_space.n)][:5].tolist()}")
+        return a
+
     def step(self, actions):
         """Fly one action per flight: actions (N,) ints -> (obs, reward, terminated,
         truncated, info), all batched."""
-        if self._last is None:
-            raise RuntimeError("VecDroneEnv.step: call reset() first")
-        a = np.asarray(actions)
-        if a.shape != (self.n_envs,) or a.dtype.kind not in "iu":
-            raise ValueError(f"VecDroneEnv.step: actions must be an int array of shape "
-                             f"({self.n_envs},); got shape {a.shape}, dtype {a.dtype}")
-        if np.any((a < 0) | (a >= self.action_space.n)):
-            raise ValueError(f"VecDroneEnv.step: actions must lie in [0, {self.action_space.n});"
-                             f" got {a[(a < 0) | (a >= self.action_space.n)][:5].tolist()}")
-        live = self.active.copy()
-        v, omega = self.actions[a, 0], self.actions[a, 1]
-        path = substep_poses(self.poses, v, omega, self.dt, self.n_sub)        # (N, S, 3)
-        d_path = nearest_distance_batch(self.batch, path[..., :2])             # (N, S)
-        bad = d_path < self.safe_distance
-        collided = bad.any(axis=1) & live
-        k = np.where(collided, np.argmax(bad, axis=1), self.n_sub - 1)
-        rows = np.arange(self.n_envs)
-        new_pose = path[rows, k]
-        d = d_path[rows, k]
-        prev_info = self._last[1]
-        self.poses = np.where(live[:, None], new_pose, self.poses)
-        d = np.where(live, d, prev_info["d_nearest"])
-        self.steps += live
-        reward = np.where(live, np.asarray(self.reward_fn(d, collided), np.float64), 0.0)
-        terminated = np.where(live, collided, prev_info["collided"])
-        truncated = np.where(live, ~collided & (self.steps >= self.max_steps),
-                             ~prev_info["collided"] & (self.steps >= self.max_steps))
-        done = live & (terminated | truncated)
+        a = self._check_actions(actions)
+        prev = self._last[1]
+        d, collided = prev["d_nearest"].copy(), prev["collided"].copy()
+        reward = np.zeros(self.n_envs)
+        idx = np.flatnonzero(self.active)
+        if len(idx):
+            batch = self.batch if len(idx) == self.n_envs else self.batch.subset(idx)
+            moved = step_drones(self.poses[idx], self.actions, a[idx], batch, self.dt,
+                                self.safe_distance, self.reward_fn)
+            self.poses[idx] = moved.poses
+            d[idx], collided[idx], reward[idx] = moved.d_nearest, moved.collided, moved.rewards
+            self.steps[idx] += 1
+        terminated = collided                      # ended flights keep their flags
+        truncated = ~collided & (self.steps >= self.max_steps)
+        done = self.active & (terminated | truncated)
         self.active &= ~done
         obs, info = self._observe(d, terminated.copy())
         info["done"] = done
         if self.autoreset and done.any():
-            # Keep the last frame of the ended flights, start their next episodes and
-            # render only their first frames.
-            idx = np.flatnonzero(done)
-            info["final_pose"] = info["pose"].copy()
-            if self.observe:
-                info["final_obs"], info["final_depth"] = obs.copy(), info["depth"].copy()
-            for i in idx:
-                self._reset_one(i, {})
-            d_new = nearest_distance_batch(self.batch, self.poses[:, None, :2])[:, 0]
-            info["pose"][idx] = self.poses[idx]
-            info["d_nearest"] = np.where(done, d_new, d)
-            info["collided"] = np.where(done, False, info["collided"])
-            info["step"][idx] = 0
-            info["scene_seed"][idx] = self.scene_seeds[idx]
-            if self.observe:
-                rgb, depth = render_batch([self.scenes[i] for i in idx], self.poses[idx],
-                                          self.camera)
-                obs[idx], info["depth"][idx] = rgb, depth
+            self._restart(np.flatnonzero(done), obs, info)
         return obs, reward, terminated, truncated, info
 
+    def _restart(self, idx, obs, info):
+        """Start the next episodes of the ended flights ``idx`` inside ``step``: keep
+        their last frames in info["final_*"], render only their first frames."""
+        info["final_pose"] = info["pose"].copy()
+        if self.observe:
+            info["final_obs"], info["final_depth"] = obs.copy(), info["depth"].copy()
+        for i in idx:
+            self._reset_one(i, {})
+        d_new = nearest_distance_batch(self.batch, self.poses[:, None, :2])[:, 0]
+        info["pose"][idx] = self.poses[idx]
+        info["d_nearest"] = np.where(info["done"], d_new, info["d_nearest"])
+        info["collided"] = np.where(info["done"], False, info["collided"])
+        info["step"][idx] = 0
+        info["scene_seed"][idx] = self.scene_seeds[idx]
+        if self.observe:
+            rgb, depth = render_batch([self.scenes[i] for i in idx], self.poses[idx],
+                                      self.camera)
+            obs[idx], info["depth"][idx] = rgb, depth
 
-__all__ = ["Discrete", "Box", "DroneEnv", "VecDroneEnv"]
+
+class DroneEnv(VecDroneEnv):
+    """One flight in one world: ``VecDroneEnv`` with N = 1 and no autoreset, taking and
+    giving one flight's values: an int action; obs (H, W, 3); a float reward; bool flags;
+    info with "pose" (3,), "depth" (H, W) and numbers. Once the flight has ended,
+    ``step`` raises until ``reset``.
+
+    Args: as VecDroneEnv's, without n_envs, autoreset and first_index. ``seed`` (an int
+    or a sequence of ints) seeds the generator of worlds and starts as
+    ``np.random.default_rng(seed)``: ``DroneEnv(seed=[s, i])`` flies flight i of
+    ``VecDroneEnv(n, seed=s)``.
+    """
+
+    def __init__(self, scenario: str = "basic", seed=0, camera: Camera | None = None,
+                 actions=None, reward_fn=None, max_steps: int = 50,
+                 safe_distance: float = SAFE_DISTANCE, dt: float = ACTION_INTERVAL,
+                 scene_overrides: dict | None = None, observe: bool = True,
+                 episodes_per_world: int = 1):
+        super().__init__(1, scenario, seed, camera, actions, reward_fn, max_steps,
+                         safe_distance, dt, scene_overrides, observe, episodes_per_world,
+                         autoreset=False)
+        self.observation_space = Box(0, 255, (self.camera.height, self.camera.width, 3),
+                                     np.uint8)
+
+    def _seed(self, seed):
+        self.rngs = [np.random.default_rng(seed)]
+
+    @property
+    def pose(self) -> np.ndarray:
+        return self.poses[0]
+
+    @property
+    def scene(self):
+        return self.scenes[0]
+
+    @property
+    def scene_seed(self) -> int:
+        return int(self.scene_seeds[0])
+
+    @property
+    def done(self) -> bool:
+        return not self.active[0]
+
+    @staticmethod
+    def _one(obs, info):
+        """Flight 0's obs and info, numbers as Python scalars."""
+        one = {k: v[0].item() if v.ndim == 1 else v[0] for k, v in info.items() if k != "done"}
+        return None if obs is None else obs[0], one
+
+    def reset(self, seed=None, options=None):
+        """Start a new flight: (obs, info). See the module docstring for ``options``."""
+        return self._one(*super().reset(seed, options))
+
+    def step(self, action):
+        """Fly one action: (obs, reward, terminated, truncated, info)."""
+        if self.done:
+            raise RuntimeError("DroneEnv.step: the episode has ended (or never started); "
+                               "call reset() first")
+        if not self.action_space.contains(action):
+            raise ValueError(f"DroneEnv.step: action must be an int in [0, {self.action_space.n});"
+                             f" got {action!r}")
+        obs, reward, term, trunc, info = super().step(np.array([action], np.int64))
+        obs, info = self._one(obs, info)
+        return obs, float(reward[0]), bool(term[0]), bool(trunc[0]), info
+
+
+__all__ = ["Discrete", "Box", "VecDroneEnv", "DroneEnv"]
