@@ -5,7 +5,7 @@ Implement leaky ReLU:
     y = x            if x > 0
     y = slope * x    otherwise            dy/dx = 1 if x > 0 else slope
 
-Follow the pattern of every op in minid3rqn/autograd/elementwise.py (look at `relu`):
+Follow the pattern of every op in minid3rqn/autograd/engine.py (look at `relu`):
 compute the forward with NumPy on ``x.data``, then return
 ``Tensor.from_op(y, (x,), vjp, "leaky_relu")`` where ``vjp(g)`` returns a tuple with
 dL/dx given g = dL/dy. Do not build it from other Tensor ops (ag.where, ag.maximum...):

@@ -8,7 +8,7 @@ from minid3rqn.autograd import Tensor, gradcheck
 from minid3rqn.autograd import conv as conv_module
 from minid3rqn.autograd.conv import (avg_pool2d, conv2d, conv_transpose2d, max_pool2d,
                                      upsample)
-from minid3rqn.autograd.elementwise import relu
+from minid3rqn.autograd.engine import relu
 
 pytestmark = pytest.mark.conv
 

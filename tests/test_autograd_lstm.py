@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from minid3rqn.autograd.engine import Tensor
+from minid3rqn.autograd.engine import Tensor, reshape
 from minid3rqn.autograd.gradcheck import gradcheck
 from minid3rqn.autograd.lstm import lstm, lstm_cell, lstm_cell_reference
-from minid3rqn.autograd.shape import concat, reshape
+from minid3rqn.autograd.shape import concat
 
 pytestmark = pytest.mark.lstm
 

@@ -4,12 +4,13 @@
 PyTorch's functional API where it has an equivalent (``ag.conv2d(x, weight, bias,
 stride, padding)``, ``ag.grid_sample``-style ``ag.bilinear_sample``, ...).
 """
-from .engine import Tensor, no_grad, is_grad_enabled, as_tensor, unbroadcast
-from .elementwise import (add, sub, mul, div, neg, pow, exp, log, sqrt, abs, astype,
-                          relu, elu, sigmoid, tanh, softplus, clip, where, maximum,
-                          minimum, matmul)
-from .reduce import sum, mean, max, log_softmax
-from .shape import reshape, transpose, getitem, concat, stack, pad, flatten
+from .engine import (Tensor, no_grad, is_grad_enabled, as_tensor, unbroadcast, add, sub,
+                     mul, div, neg, pow, exp, log, relu, astype, matmul, sum, mean, max,
+                     reshape, transpose, getitem)
+from .elementwise import (sqrt, abs, elu, sigmoid, tanh, softplus, clip, where, maximum,
+                          minimum)
+from .reduce import log_softmax
+from .shape import concat, stack, pad, flatten
 from .gradcheck import gradcheck, GradcheckError
 from .lstm import lstm_cell, lstm, lstm_cell_reference
 from .sample import bilinear_sample, pixel_grid

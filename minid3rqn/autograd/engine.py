@@ -1,6 +1,6 @@
-"""The reverse-mode engine: a Tensor that remembers how it was made.
+"""The reverse-mode engine: a Tensor that remembers how it was made, and its operators.
 
-Every op in this package follows one pattern (see ``elementwise.exp``)::
+Every op in this package follows one pattern (see ``exp`` below)::
 
     def exp(x):
         x = as_tensor(x)
@@ -14,9 +14,15 @@ needs no gradient). ``Tensor.backward`` sorts the graph topologically with an ex
 stack (no recursion, so an LSTM unrolled over many steps cannot overflow Python's
 stack) and calls the products from the output back to the leaves, summing the
 gradients that meet at a node.
+
+This file holds the Tensor and the ops its operators and methods call (``a + b``,
+``a @ b``, ``x[i]``, ``x.sum()``, ``x.T``, ...), each op's forward beside its
+backward. The other ops build on these in elementwise.py, reduce.py, shape.py, conv.py,
+lstm.py and sample.py.
 """
 from __future__ import annotations
 
+import builtins
 import contextlib
 from typing import Callable, Iterable, Sequence
 
@@ -125,7 +131,6 @@ class Tensor:
 
     @property
     def T(self) -> "Tensor":
-        from .shape import transpose
         return transpose(self)
 
     def __len__(self) -> int:
@@ -142,7 +147,6 @@ class Tensor:
         return Tensor(self.data)
 
     def astype(self, dtype) -> "Tensor":
-        from .elementwise import astype
         return astype(self, dtype)
 
     def zero_grad(self) -> None:
@@ -204,93 +208,72 @@ class Tensor:
                 else:
                     grads[key] = pg
 
-    # -- operators (implemented in elementwise / shape / reduce) -------------------
+    # -- operators: each calls the op of the same name defined below the class ------
     def __add__(self, other):
-        from .elementwise import add
         return add(self, other)
 
     def __radd__(self, other):
-        from .elementwise import add
         return add(other, self)
 
     def __sub__(self, other):
-        from .elementwise import sub
         return sub(self, other)
 
     def __rsub__(self, other):
-        from .elementwise import sub
         return sub(other, self)
 
     def __mul__(self, other):
-        from .elementwise import mul
         return mul(self, other)
 
     def __rmul__(self, other):
-        from .elementwise import mul
         return mul(other, self)
 
     def __truediv__(self, other):
-        from .elementwise import div
         return div(self, other)
 
     def __rtruediv__(self, other):
-        from .elementwise import div
         return div(other, self)
 
     def __neg__(self):
-        from .elementwise import neg
         return neg(self)
 
     def __pow__(self, exponent):
-        from .elementwise import pow
         return pow(self, exponent)
 
     def __matmul__(self, other):
-        from .elementwise import matmul
         return matmul(self, other)
 
     def __rmatmul__(self, other):
-        from .elementwise import matmul
         return matmul(other, self)
 
     def __getitem__(self, index):
-        from .shape import getitem
         return getitem(self, index)
 
     def sum(self, axis=None, keepdims=False):
-        from .reduce import sum
         return sum(self, axis, keepdims)
 
     def mean(self, axis=None, keepdims=False):
-        from .reduce import mean
         return mean(self, axis, keepdims)
 
     def max(self, axis=None, keepdims=False):
-        from .reduce import max
         return max(self, axis, keepdims)
 
     def reshape(self, *shape):
-        from .shape import reshape
         if len(shape) == 1 and isinstance(shape[0], (tuple, list)):
             shape = tuple(shape[0])
         return reshape(self, shape)
 
     def transpose(self, *axes):
-        from .shape import transpose
         if len(axes) == 1 and isinstance(axes[0], (tuple, list)):
             axes = tuple(axes[0])
         return transpose(self, axes or None)
 
     def exp(self):
-        from .elementwise import exp
         return exp(self)
 
     def log(self):
-        from .elementwise import log
         return log(self)
 
     def relu(self):
-        from .elementwise import relu
         return relu(self)
 
 
@@ -351,3 +334,265 @@ def check_same_dtype(tensors: Iterable[Tensor], op: str) -> None:
     if len(dtypes) > 1:
         raise TypeError(f"{op}: inputs mix dtypes {sorted(str(d) for d in dtypes)}; "
                         f"convert them to one dtype first (e.g. x.astype(np.float32)).")
+
+
+def broadcast_pair(a, b, op: str) -> tuple[Tensor, Tensor]:
+    """``a`` and ``b`` as Tensors of one dtype whose shapes broadcast (a scalar or array
+    takes the other's dtype); raises TypeError / ValueError naming ``op`` otherwise."""
+    if isinstance(a, Tensor):
+        b = as_tensor(b, like=a)
+    elif isinstance(b, Tensor):
+        a = as_tensor(a, like=b)
+    else:
+        a, b = as_tensor(a), as_tensor(b)
+    check_same_dtype((a, b), op)
+    try:
+        np.broadcast_shapes(a.shape, b.shape)
+    except ValueError:
+        raise ValueError(f"{op}: shapes {a.shape} and {b.shape} do not broadcast") from None
+    return a, b
+
+
+# -- arithmetic: + - * / unary minus ** ------------------------------------------------
+def add(a, b) -> Tensor:
+    """y = a + b;  dy/da = 1, dy/db = 1."""
+    a, b = broadcast_pair(a, b, "add")
+    return Tensor.from_op(a.data + b.data, (a, b),
+                          lambda g: (unbroadcast(g, a.shape), unbroadcast(g, b.shape)), "add")
+
+
+def sub(a, b) -> Tensor:
+    """y = a - b;  dy/da = 1, dy/db = -1."""
+    a, b = broadcast_pair(a, b, "sub")
+    return Tensor.from_op(a.data - b.data, (a, b),
+                          lambda g: (unbroadcast(g, a.shape), unbroadcast(-g, b.shape)), "sub")
+
+
+def mul(a, b) -> Tensor:
+    """y = a * b;  dy/da = b, dy/db = a."""
+    a, b = broadcast_pair(a, b, "mul")
+    return Tensor.from_op(a.data * b.data, (a, b),
+                          lambda g: (unbroadcast(g * b.data, a.shape),
+                                     unbroadcast(g * a.data, b.shape)), "mul")
+
+
+def div(a, b) -> Tensor:
+    """y = a / b;  dy/da = 1/b, dy/db = -a/b^2 = -y/b."""
+    a, b = broadcast_pair(a, b, "div")
+    y = a.data / b.data
+    return Tensor.from_op(y, (a, b),
+                          lambda g: (unbroadcast(g / b.data, a.shape),
+                                     unbroadcast(-g * y / b.data, b.shape)), "div")
+
+
+def neg(x) -> Tensor:
+    """y = -x;  dy/dx = -1."""
+    x = as_tensor(x)
+    return Tensor.from_op(-x.data, (x,), lambda g: (-g,), "neg")
+
+
+def pow(x, exponent) -> Tensor:
+    """y = x^p for a constant p;  dy/dx = p x^(p-1)."""
+    x = as_tensor(x)
+    if isinstance(exponent, Tensor):
+        raise TypeError("pow: exponent must be a Python number (a constant); "
+                        "for x^t with a tensor t use exp(t * log(x))")
+    p = float(exponent)
+    y = x.data ** p
+    return Tensor.from_op(y, (x,), lambda g: (g * p * x.data ** (p - 1),), "pow")
+
+
+# -- exp, log, relu, and a change of dtype ---------------------------------------------
+def exp(x) -> Tensor:
+    """y = e^x;  dy/dx = e^x = y."""
+    x = as_tensor(x)
+    y = np.exp(x.data)
+    return Tensor.from_op(y, (x,), lambda g: (g * y,), "exp")
+
+
+def log(x) -> Tensor:
+    """y = ln x;  dy/dx = 1/x."""
+    x = as_tensor(x)
+    return Tensor.from_op(np.log(x.data), (x,), lambda g: (g / x.data,), "log")
+
+
+def relu(x) -> Tensor:
+    """y = max(x, 0);  dy/dx = 1 if x > 0 else 0."""
+    x = as_tensor(x)
+    mask = x.data > 0
+    return Tensor.from_op(x.data * mask, (x,), lambda g: (g * mask,), "relu")
+
+
+def astype(x, dtype) -> Tensor:
+    """y = x in another float dtype;  dy/dx = 1 (the gradient converts back)."""
+    x = as_tensor(x)
+    old = x.dtype
+    return Tensor.from_op(x.data.astype(dtype), (x,), lambda g: (g.astype(old),), "astype")
+
+
+# -- matrix product: @ -----------------------------------------------------------------
+def matmul(a, b) -> Tensor:
+    """Y = A @ B (batched over leading axes, broadcast like NumPy).
+
+    dL/dA = G @ B^T,  dL/dB = A^T @ G  (then summed over broadcast batch axes).
+    Vectors (1-D) are treated as in NumPy: promoted, then the added axis removed.
+    """
+    a, b = _pair_matmul(a, b)
+    y = a.data @ b.data
+
+    def vjp(g):
+        ad, bd = a.data, b.data
+        if ad.ndim == 1 and bd.ndim == 1:       # dot product: g is a scalar
+            return g * bd, g * ad
+        if ad.ndim == 1:                        # (k) @ (..., k, n) -> (..., n)
+            ga = (g[..., None, :] @ np.swapaxes(bd, -1, -2))[..., 0, :]
+            gb = ad[:, None] * g[..., None, :]
+            return unbroadcast(ga, a.shape), unbroadcast(gb, b.shape)
+        if bd.ndim == 1:                        # (..., m, k) @ (k) -> (..., m)
+            ga = g[..., :, None] * bd
+            gb = (np.swapaxes(ad, -1, -2) @ g[..., :, None])[..., 0]
+            return unbroadcast(ga, a.shape), unbroadcast(gb, b.shape)
+        ga = g @ np.swapaxes(bd, -1, -2)
+        gb = np.swapaxes(ad, -1, -2) @ g
+        return unbroadcast(ga, a.shape), unbroadcast(gb, b.shape)
+
+    return Tensor.from_op(y, (a, b), vjp, "matmul")
+
+
+def _pair_matmul(a, b) -> tuple[Tensor, Tensor]:
+    if isinstance(a, Tensor):
+        b = as_tensor(b, like=a)
+    else:
+        b = as_tensor(b)
+        a = as_tensor(a, like=b)
+    check_same_dtype((a, b), "matmul")
+    if a.ndim == 0 or b.ndim == 0:
+        raise ValueError(f"matmul: inputs must have at least 1 dimension; got shapes "
+                         f"{a.shape} and {b.shape}")
+    k_a = a.shape[-1]
+    k_b = b.shape[0] if b.ndim == 1 else b.shape[-2]
+    if k_a != k_b:
+        raise ValueError(f"matmul: inner dimensions differ: a is {a.shape}, b is "
+                         f"{b.shape} ({k_a} != {k_b})")
+    return a, b
+
+
+# -- reductions: sum, mean, max --------------------------------------------------------
+# A reduction removes axes; its gradient puts them back (``keepdims`` shape) and
+# broadcasts ``g`` over them, because every reduced entry influenced the result.
+def reduction_axes(axis, ndim: int, op: str) -> tuple[int, ...]:
+    """``axis`` (None, an int or a tuple) as sorted non-negative axes of an ``ndim``-D
+    tensor; None means all. Raises ValueError naming ``op`` for an axis out of range."""
+    if axis is None:
+        return tuple(range(ndim))
+    axes = (axis,) if isinstance(axis, (int, np.integer)) else tuple(axis)
+    out = []
+    for a in axes:
+        if not -ndim <= a < builtins.max(ndim, 1):
+            raise ValueError(f"{op}: axis {a} is out of range for a tensor with "
+                             f"{ndim} dimensions")
+        out.append(a % builtins.max(ndim, 1))
+    return tuple(sorted(set(out)))
+
+
+def _regrow(g: np.ndarray, axes: tuple[int, ...], keepdims: bool) -> np.ndarray:
+    """g with the reduced axes restored as length-1 axes (ready to broadcast)."""
+    return g if keepdims else np.expand_dims(g, axes)
+
+
+def sum(x, axis=None, keepdims: bool = False) -> Tensor:
+    """y = sum_i x_i over ``axis``;  dy/dx_i = 1."""
+    x = as_tensor(x)
+    axes = reduction_axes(axis, x.ndim, "sum")
+    y = np.sum(x.data, axis=axes, keepdims=keepdims)
+    return Tensor.from_op(np.asarray(y), (x,),
+                          lambda g: (np.broadcast_to(_regrow(g, axes, keepdims),
+                                                     x.shape).copy(),), "sum")
+
+
+def mean(x, axis=None, keepdims: bool = False) -> Tensor:
+    """y = (1/n) sum_i x_i over ``axis``;  dy/dx_i = 1/n."""
+    x = as_tensor(x)
+    axes = reduction_axes(axis, x.ndim, "mean")
+    n = int(np.prod([x.shape[a] for a in axes])) if axes else 1
+    y = np.mean(x.data, axis=axes, keepdims=keepdims)
+    return Tensor.from_op(np.asarray(y, dtype=x.dtype), (x,),
+                          lambda g: (np.broadcast_to(_regrow(g, axes, keepdims) / n,
+                                                     x.shape).astype(x.dtype),), "mean")
+
+
+def max(x, axis=None, keepdims: bool = False) -> Tensor:
+    """y = max_i x_i over ``axis``;  dy/dx_i = 1 at the maximum, else 0.
+
+    On ties the gradient is shared equally among the tied entries (a subgradient).
+    """
+    x = as_tensor(x)
+    axes = reduction_axes(axis, x.ndim, "max")
+    y_keep = np.max(x.data, axis=axes, keepdims=True)
+    y = y_keep if keepdims else np.squeeze(y_keep, axis=axes)
+
+    def vjp(g):
+        hit = x.data == y_keep
+        share = hit / np.sum(hit, axis=axes, keepdims=True)
+        return (_regrow(g, axes, keepdims) * share.astype(x.dtype),)
+
+    return Tensor.from_op(np.asarray(y), (x,), vjp, "max")
+
+
+# -- moving entries: reshape, transpose, indexing --------------------------------------
+# Their gradients move ``g`` back the same way.
+def reshape(x, shape) -> Tensor:
+    """y = x viewed with a new shape;  dL/dx = g reshaped back."""
+    x = as_tensor(x)
+    shape = tuple(int(s) for s in shape)
+    try:
+        y = x.data.reshape(shape)
+    except ValueError:
+        raise ValueError(f"reshape: cannot reshape a tensor of shape {x.shape} "
+                         f"({x.size} entries) into {shape}") from None
+    return Tensor.from_op(y, (x,), lambda g: (g.reshape(x.shape),), "reshape")
+
+
+def transpose(x, axes=None) -> Tensor:
+    """y = x with axes permuted;  dL/dx = g permuted by the inverse permutation."""
+    x = as_tensor(x)
+    if axes is None:
+        axes = tuple(reversed(range(x.ndim)))
+    axes = tuple(int(a) for a in axes)
+    if sorted(a % builtins.max(x.ndim, 1) for a in axes) != list(range(x.ndim)):
+        raise ValueError(f"transpose: axes {axes} are not a permutation of "
+                         f"0..{x.ndim - 1} for shape {x.shape}")
+    inverse = tuple(np.argsort(axes))
+    return Tensor.from_op(np.transpose(x.data, axes), (x,),
+                          lambda g: (np.transpose(g, inverse),), "transpose")
+
+
+def getitem(x, index) -> Tensor:
+    """y = x[index] (slices, ints, boolean masks, integer arrays);  dL/dx = g scattered.
+
+    With integer arrays an entry can be picked several times (a gather), so the
+    scatter adds (``np.add.at``); slices, ints and boolean masks pick each entry at
+    most once, so plain assignment does (much faster). This is how Q(s, a) is read off
+    a batch of Q-values: ``q[np.arange(B), actions]``.
+    """
+    x = as_tensor(x)
+    if isinstance(index, Tensor):
+        raise TypeError("getitem: index with NumPy arrays or ints, not Tensors")
+    try:
+        y = x.data[index]
+    except IndexError as e:
+        raise IndexError(f"getitem: index {index!r} does not fit shape {x.shape}: {e}") from None
+
+    parts = index if isinstance(index, tuple) else (index,)
+    gathers = any(isinstance(p, (list, np.ndarray)) and np.asarray(p).dtype != bool
+                  for p in parts)
+
+    def vjp(g):
+        gx = np.zeros_like(x.data)
+        if gathers:    # an entry may be picked twice: add, don't overwrite
+            np.add.at(gx, index, g)
+        else:          # slices, ints and masks pick each entry at most once
+            gx[index] = g
+        return (gx,)
+
+    return Tensor.from_op(np.array(y, copy=True), (x,), vjp, "getitem")

@@ -6,9 +6,8 @@ Huber_delta(r) = r^2 / 2 if |r| <= delta else delta (|r| - delta / 2).
 """
 from __future__ import annotations
 
-from .elementwise import abs, clip, mul, sub
-from .engine import Tensor, as_tensor
-from .reduce import mean
+from .elementwise import abs, clip
+from .engine import Tensor, as_tensor, mean, mul, sub
 
 _REDUCTIONS = ("mean", "sum", "none")
 

@@ -34,9 +34,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .engine import FLOAT_DTYPES, Tensor, as_tensor, check_same_dtype
-from .elementwise import _stable_sigmoid, add, matmul, mul, sigmoid, tanh
-from .shape import transpose
+from .engine import (FLOAT_DTYPES, Tensor, add, as_tensor, check_same_dtype, matmul, mul,
+                     transpose)
+from .elementwise import _stable_sigmoid, sigmoid, tanh
 
 
 # -- helpers -------------------------------------------------------------------------

@@ -1,7 +1,8 @@
-"""Ops that move entries without computing with them.
+"""Ops that move entries without computing with them: concat, stack, pad, flatten.
 
-Their gradients move ``g`` back the same way: reshape back, transpose by the inverse
-permutation, scatter into the sliced positions, split along the concatenated axis.
+Their gradients move ``g`` back the same way: split along the concatenated axis, take
+the slice of each stacked input, cut (or fold back) the padding. reshape, transpose and
+getitem sit in engine.py, beside the Tensor whose methods call them.
 """
 from __future__ import annotations
 
@@ -9,64 +10,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .engine import Tensor, as_tensor, check_same_dtype
-
-
-def reshape(x, shape) -> Tensor:
-    """y = x viewed with a new shape;  dL/dx = g reshaped back."""
-    x = as_tensor(x)
-    shape = tuple(int(s) for s in shape)
-    try:
-        y = x.data.reshape(shape)
-    except ValueError:
-        raise ValueError(f"reshape: cannot reshape a tensor of shape {x.shape} "
-                         f"({x.size} entries) into {shape}") from None
-    return Tensor.from_op(y, (x,), lambda g: (g.reshape(x.shape),), "reshape")
-
-
-def transpose(x, axes=None) -> Tensor:
-    """y = x with axes permuted;  dL/dx = g permuted by the inverse permutation."""
-    x = as_tensor(x)
-    if axes is None:
-        axes = tuple(reversed(range(x.ndim)))
-    axes = tuple(int(a) for a in axes)
-    if sorted(a % max(x.ndim, 1) for a in axes) != list(range(x.ndim)):
-        raise ValueError(f"transpose: axes {axes} are not a permutation of "
-                         f"0..{x.ndim - 1} for shape {x.shape}")
-    inverse = tuple(np.argsort(axes))
-    return Tensor.from_op(np.transpose(x.data, axes), (x,),
-                          lambda g: (np.transpose(g, inverse),), "transpose")
-
-
-def getitem(x, index) -> Tensor:
-    """y = x[index] (slices, ints, boolean masks, integer arrays);  dL/dx = g scattered.
-
-    With integer arrays an entry can be picked several times (a gather), so the
-    scatter adds (``np.add.at``); slices, ints and boolean masks pick each entry at
-    most once, so plain assignment does (much faster). This is how Q(s, a) is read off a batch of Q-values:
-    ``q[np.arange(B), actions]``.
-    """
-    x = as_tensor(x)
-    if isinstance(index, Tensor):
-        raise TypeError("getitem: index with NumPy arrays or ints, not Tensors")
-    try:
-        y = x.data[index]
-    except IndexError as e:
-        raise IndexError(f"getitem: index {index!r} does not fit shape {x.shape}: {e}") from None
-
-    parts = index if isinstance(index, tuple) else (index,)
-    gathers = any(isinstance(p, (list, np.ndarray)) and np.asarray(p).dtype != bool
-                  for p in parts)
-
-    def vjp(g):
-        gx = np.zeros_like(x.data)
-        if gathers:    # an entry may be picked twice: add, don't overwrite
-            np.add.at(gx, index, g)
-        else:          # slices, ints and masks pick each entry at most once
-            gx[index] = g
-        return (gx,)
-
-    return Tensor.from_op(np.array(y, copy=True), (x,), vjp, "getitem")
+from .engine import Tensor, as_tensor, check_same_dtype, reshape
 
 
 def concat(tensors: Sequence[Tensor], axis: int = 0) -> Tensor:
@@ -151,4 +95,4 @@ def flatten(x, start_dim: int = 1) -> Tensor:
     return reshape(x, x.shape[:start_dim] + (-1,))
 
 
-__all__ = ["reshape", "transpose", "getitem", "concat", "stack", "pad", "flatten"]
+__all__ = ["concat", "stack", "pad", "flatten"]
