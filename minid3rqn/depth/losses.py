@@ -30,11 +30,12 @@ What we train with adds, to that one equation, pieces from later work (each mark
     [unmasked]   + beta mean_p min(e(p), 1): a weak term without the mask, so that a
                  batch the mask shuts entirely (a wrong-sign yaw, a depth far too near)
                  still gets a gradient (ours; ``unmasked_weight``).
-    [scales]     the photometric term at 4 scales i, averaged. SfMLearner warps images
-                 downsampled 2^i times with the disparity of scale i; monodepth2 (our
-                 ``full_res``) upsamples each disparity and warps the full images.
-    [smooth]     lambda L_smooth, L_smooth = sum_i 2^-i mean_p (|dx d*| e^{-|dx I|} +
-                 |dy d*| e^{-|dy I|}), d* = disp_i / mean(disp_i): edge-aware
+    [scales]     L_photo = (1/n) sum_i of that term at each of the n = 4 scales i of
+                 the disparity. SfMLearner warps images downsampled 2^i times with the
+                 disparity of scale i; monodepth2 (our ``full_res``) upsamples each
+                 disparity and warps the full images.
+    [smooth]     lambda L_smooth, L_smooth = (1/n) sum_i 2^-i mean_p (|dx d*| e^{-|dx I|}
+                 + |dy d*| e^{-|dy I|}), d* = disp_i / mean(disp_i): edge-aware
                  smoothness of the mean-normalised disparity (SfMLearner's smoothness
                  term, monodepth2's form), lambda = 1e-3.
     [speed]      mu mean_s | |t_{t->s}| - v dt |: the drone's known speed, 2 m/s x 0.4 s
@@ -53,6 +54,7 @@ from .. import autograd as ag
 from ..autograd import Tensor
 from ..autograd.conv import upsample
 from ..config import at_least, between, setting, validate
+from .data import FRAME_DT, SPEED
 from .geometry import crop, inverse_warp, pose_vec_to_mat, scale_intrinsics
 
 
@@ -95,7 +97,7 @@ SSIM_C1, SSIM_C2 = 0.01 ** 2, 0.03 ** 2
 INVALID = 1.0e3         # added to the error of out-of-view pixels so the minimum skips them
 SMOOTH_WEIGHT = 1e-3    # lambda (monodepth2)
 SPEED_WEIGHT = 0.1      # mu (ours)
-STEP = 0.8              # metres flown between frames: 2 m/s x 0.4 s (the paper's)
+STEP = SPEED * FRAME_DT  # metres flown between frames: 2 m/s x 0.4 s (the paper's)
 
 
 @dataclass
@@ -204,6 +206,17 @@ def smoothness_loss(disp, image) -> Tensor:
     return ag.mean(ag.abs(dx) * wx) + ag.mean(ag.abs(dy) * wy)
 
 
+def at_scale(target, sources, disp, K, factor: int, full_res: bool):
+    """[scales] (target, sources, depth, K) of the scale of ``disp`` (1 / ``factor`` of
+    the images). SfMLearner: the images downsampled to the disparity's size, K scaled;
+    ``full_res`` (monodepth2): the disparity upsampled to the images, which stay whole."""
+    if full_res:
+        depth = 1.0 / (disp if factor == 1 else upsample(disp, factor, "bilinear"))
+        return target, sources, depth, K
+    return (downsample_image(target, factor), [downsample_image(s, factor) for s in sources],
+            1.0 / disp, scale_intrinsics(K, 1.0 / factor))
+
+
 def speed_loss(poses, step: float = STEP) -> Tensor:
     """[speed] mean over images and sources of | |t_{t->s}| - step |; poses (N, S, 6)."""
     t = crop(poses, (slice(None), slice(None), slice(0, 3)))
@@ -244,39 +257,36 @@ def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | N
                          f"{(n, len(sources), 6)}; got {poses.shape}")
     # Pose matrices for every (source, image): batch order (s, n).
     T = pose_vec_to_mat(ag.reshape(ag.transpose(poses, (1, 0, 2)), (len(sources) * n, 6)))
-    photo, smooth, masks = 0.0, 0.0, []
+    photos, smooths, masks = [], [], []
     for i, disp in enumerate(disps):
         factor = 2 ** i
         if disp.shape != (n, 1, -(-h // factor), -(-w // factor)):
             raise ValueError(f"view_synthesis_loss: disps[{i}] must be (N, 1, H/{factor}, "
                              f"W/{factor}) = {(n, 1, h // factor, w // factor)}; got "
                              f"{disp.shape}")
-        if cfg.full_res:          # monodepth2: upsample the disparity, warp full images
-            depth = 1.0 / (disp if factor == 1 else upsample(disp, factor, "bilinear"))
-            tgt_i, srcs_i, K_i = target, sources, K
-        else:                     # SfMLearner: warp images downsampled to the scale
-            depth = 1.0 / disp
-            tgt_i = downsample_image(target, factor)
-            srcs_i = [downsample_image(src, factor) for src in sources]
-            K_i = scale_intrinsics(K, 1.0 / factor)
+        tgt_i, srcs_i, depth, K_i = at_scale(target, sources, disp, K, factor, cfg.full_res)
         errors, valid = reconstruction_errors(tgt_i, srcs_i, depth, T, K_i, pe)
-        identity = pe(Tensor(np.concatenate(srcs_i)),
+        identity = pe(Tensor(np.concatenate(srcs_i)),            # the unwarped sources
                       Tensor(np.concatenate([tgt_i] * len(srcs_i)))).data
         identity = identity.reshape(errors.shape).min(axis=0).astype(target.dtype)
         photo_i, mask_i = masked_minimum(errors, valid, identity, cfg.unmasked_weight)
-        photo = photo_i if i == 0 else photo + photo_i
+        photos.append(photo_i)
         masks.append(mask_i.ravel())
-        term = smoothness_loss(disp, downsample_image(target, factor)) * (1.0 / factor)
-        smooth = term if i == 0 else smooth + term
-    photo = photo * (1.0 / len(disps))
-    smooth = smooth * (1.0 / len(disps))
-    speed = speed_loss(poses, step)
+        smooths.append(smoothness_loss(disp, downsample_image(target, factor))
+                       * (1.0 / factor))
+    photo, smooth, speed = _mean(photos), _mean(smooths), speed_loss(poses, step)
     loss = photo + smooth * SMOOTH_WEIGHT + speed * SPEED_WEIGHT
     info = {"photo": float(photo.data), "smooth": float(smooth.data),
             "mask": float(np.concatenate(masks).mean()), "speed": float(speed.data)}
     return loss, info
 
 
+def _mean(terms: list) -> Tensor:
+    total = terms[0]
+    for term in terms[1:]:
+        total = total + term
+    return total * (1.0 / len(terms))
+
 __all__ = ["l1_error", "reconstruction_errors", "LossConfig", "box3", "ssim_dissimilarity",
            "photometric_error", "configured_error", "masked_minimum", "downsample_image",
-           "smoothness_loss", "speed_loss", "view_synthesis_loss"]
+           "smoothness_loss", "at_scale", "speed_loss", "view_synthesis_loss"]
