@@ -17,11 +17,6 @@ Measured (medians over ``--repeat`` runs after 3 warm-ups, float32, 32x104):
   ``infer_fps_ours_autograd``: the same through ``DispNet.forward`` under ``no_grad``
   (what ``predict`` ran before). ``infer_ms_b1``: one frame (batch 1, the flight loop).
   The script checks that the two paths agree (1e-4 relative) before timing.
-- ``cost_volume_ms``: the plane-sweep cost volume (``depth/cost_volume.py``, 12 depths)
-  of one frame against the one before, per frame on a batch of 64; and
-  ``infer_fps_ours_cost12``: frames per second of a DispNet that reads it
-  (``DepthEstimator.predict`` with ``prev`` and ``motion``: the cost volume, then the
-  DispNet with 3 + 12 input channels), on the same batch.
 
 For each thread count the script re-runs itself in a child process with
 OMP_NUM_THREADS / OPENBLAS_NUM_THREADS / MKL_NUM_THREADS set before NumPy loads, and
@@ -44,7 +39,7 @@ def _child(threads: int, repeat: int) -> dict:
     sys.path.insert(0, ROOT)
     from minid3rqn import autograd as ag
     from minid3rqn.autograd.optim import Adam
-    from minid3rqn.depth.losses import LossConfig, view_synthesis_loss
+    from minid3rqn.depth.losses import view_synthesis_loss
     from minid3rqn.depth.train import TrainConfig, build_nets
     from minid3rqn.world import Camera
 
@@ -92,23 +87,6 @@ def _child(threads: int, repeat: int) -> dict:
     def ours_infer_flip():
         flip_est.predict_disp(frames_u8)
 
-    # A DispNet with a 12-plane cost volume (train-depth --cost-volume 12): the cost
-    # volume of each frame against a copy shifted by a pixel, with a forward step.
-    from minid3rqn.depth.cost_volume import plane_sweep_cost
-    from minid3rqn.nets.dispnet import DispNet
-    cv_disp = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales, rng=0, cost_planes=12)
-    cv_est = DepthEstimator(cv_disp, 1.0, {"height": h, "width": w, "K": K.tolist()})
-    prev_u8 = np.roll(frames_u8, 1, axis=2)
-    step = np.tile(np.eye(4), (64, 1, 1))
-    step[:, 2, 3] = -0.8                         # T_{t->t-1}: the camera was 0.8 m back
-    cv_est.predict_disp(frames_u8, prev=prev_u8, motion=step)
-
-    def ours_cost_volume():
-        plane_sweep_cost(frames_u8, prev_u8, step, K)
-
-    def ours_infer_cost():
-        cv_est.predict_disp(frames_u8, prev=prev_u8, motion=step)
-
     def ours_infer_b1_autograd():
         with ag.no_grad():
             disp(frames[:1], scales=1)
@@ -135,8 +113,6 @@ def _child(threads: int, repeat: int) -> dict:
     result["infer_fps_ours_autograd"] = 64 / (_median_ms(ours_infer_autograd, repeat)
                                               / 1000)
     result["infer_fps_ours_flip"] = 64 / (_median_ms(ours_infer_flip, repeat) / 1000)
-    result["cost_volume_ms"] = _median_ms(ours_cost_volume, repeat) / 64
-    result["infer_fps_ours_cost12"] = 64 / (_median_ms(ours_infer_cost, repeat) / 1000)
     result["infer_ms_b1_ours"] = _median_ms(ours_infer_b1, 20 * repeat)
     result["infer_ms_b1_ours_autograd"] = _median_ms(ours_infer_b1_autograd, 20 * repeat)
     result["train_iter_ms_ours"] = _median_ms(ours_iter, repeat)
@@ -167,6 +143,7 @@ def _torch_side(disp, pose, target, sources, K, cfg, frames, threads):
     except ImportError:
         return None
     import numpy as np
+    from minid3rqn.depth.losses import SMOOTH_WEIGHT, SPEED_WEIGHT, STEP
     torch.set_num_threads(threads)
     nn = torch.nn
 
@@ -290,8 +267,8 @@ def _torch_side(disp, pose, target, sources, K, cfg, frames, threads):
                 -(tg[..., 1:, :] - tg[..., :-1, :]).abs().mean(1, keepdim=True))
             smooth = smooth + (dx.mean() + dy.mean()) / f
         n_sc = len(disps)
-        speed = ((poses[..., :3] ** 2).sum(-1) + 1e-12).sqrt().sub(lc.step).abs().mean()
-        return photo / n_sc + lc.smooth_weight * smooth / n_sc + lc.speed_weight * speed
+        speed = ((poses[..., :3] ** 2).sum(-1) + 1e-12).sqrt().sub(STEP).abs().mean()
+        return photo / n_sc + SMOOTH_WEIGHT * smooth / n_sc + SPEED_WEIGHT * speed
 
     opt = torch.optim.Adam(list(dn.parameters()) + list(pn.parameters()), lr=cfg.lr)
     fr = torch.from_numpy(frames)

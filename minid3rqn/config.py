@@ -214,8 +214,10 @@ def add_arguments(parser: argparse.ArgumentParser, cls, defaults=None,
             more.append(f"  {name}={value}: {f.metadata.get('help', '')}")
             continue
         source = f.metadata.get("source", "ours")
-        if source not in groups:
-            groups[source] = parser.add_argument_group(GROUP_TITLES[source])
+        if source not in groups:            # one group per source, also across configs
+            groups[source] = next((g for g in parser._action_groups
+                                   if g.title == GROUP_TITLES[source]), None) \
+                or parser.add_argument_group(GROUP_TITLES[source])
         help_text = f.metadata.get("help", "")
         if source == "paper":
             help_text = f"paper: {help_text}" if help_text else "paper"

@@ -145,3 +145,7 @@ def machine() -> dict:
     import platform
     return {"numpy": np.__version__, "blas_core": blas_core(),
             "python": platform.python_version(), "platform": platform.machine()}
+
+
+# The shipped model files (minid3rqn/models), found from any working directory.
+MODELS = Path(__file__).resolve().parent / "models"

@@ -469,9 +469,9 @@ def test_flights_pay_the_students_reward():
 def test_patches_are_scoped():
     import importlib
     # import_module, not `import a.b.c as x`: rl/__init__ re-exports a function `train`
-    dl, agent, ev, tr = (importlib.import_module(f"minid3rqn.{m}") for m in
-                         ("depth.losses", "rl.agent", "rl.evaluate", "rl.train"))
-    before = (tr.Flights, ev.Flights, agent.double_q_targets, dl.photometric_error)
+    agent, ev, tr = (importlib.import_module(f"minid3rqn.{m}") for m in
+                     ("rl.agent", "rl.evaluate", "rl.train"))
+    before = (tr.Flights, ev.Flights, agent.double_q_targets)
     from minid3rqn.rl.flights import FlightsConfig
     with adapters.classroom_flights(actions=[[2.0, 0.0], [2.0, 0.9]]) as make:
         assert tr.Flights is make and ev.Flights is make
@@ -481,9 +481,7 @@ def test_patches_are_scoped():
         y = agent.double_q_targets(np.zeros((1, 2, 3)), np.ones((1, 2, 3)), np.ones((1, 2)),
                                    np.zeros((1, 2)), 0.9)
         assert y.dtype == np.float32 and np.all(y == 1)
-    with adapters.photometric_error(lambda p, t: "mine"):
-        assert dl.photometric_error(1, 2, 0.85) == "mine"
-    assert before == (tr.Flights, ev.Flights, agent.double_q_targets, dl.photometric_error)
+    assert before == (tr.Flights, ev.Flights, agent.double_q_targets)
 
 
 # -- the runner and the CLI hooks ------------------------------------------------------

@@ -1,5 +1,8 @@
-"""The depth commands (collect, train-depth, eval-depth) and the example, in smoke mode."""
+"""The depth commands (collect, train-depth, eval-depth) and the example, at smoke size."""
+import argparse
 import json
+import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -7,99 +10,132 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from minid3rqn import cli
+from minid3rqn.config import from_args
 from minid3rqn.depth import commands
+from minid3rqn.depth.data import CollectConfig, load_sequence
+from minid3rqn.depth.evaluate import DepthEstimator
+from minid3rqn.depth.train import TrainConfig
 
 pytestmark = pytest.mark.depth
 ROOT = Path(__file__).resolve().parent.parent
+ENV = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT),
+                                                               os.environ.get("PYTHONPATH")])))
+SMOKE = ["--frames", "60", "--iterations", "3", "--set", "test_frames=30", "--quiet"]
 
 
 def _run(argv):
-    return commands.main(argv)
+    return cli.main(argv)
 
 
 def test_collect_train_eval_smoke(tmp_path, capsys):
     data = tmp_path / "train.npz"
-    assert _run(["collect", "--frames", "20", "--frames-per-flight", "10", "--out",
-                 str(data)]) == 0
+    assert _run(["collect", "--frames", "20", "--set", "frames_per_flight=10", "--seed", "4",
+                 "--out", str(data)]) == 0
+    seq = load_sequence(data)
+    assert len(seq) == 20 and seq.flight.max() == 1 and seq.meta["seed"] == 4
+    assert "--set frames_per_flight=10" in seq.meta["command"]
     run = tmp_path / "run"
-    assert _run(["train-depth", "--smoke", "--quiet", "--dir", str(run)]) == 0
+    assert _run(["train-depth", *SMOKE, "--seed", "3", "--dir", str(run)]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert {"abs_rel", "a1", "rot_err_deg"} <= set(out)
     assert (run / "model.npz").is_file() and (run / "pictures.png").is_file()
     meta = json.loads((run / "results.json").read_text())
-    assert meta["seed"] == 0 and meta["command"].startswith("python -m minid3rqn train-depth")
-    assert "--seed 0" in meta["command"] and "--smoke" in meta["command"]
+    assert meta["seed"] == 3 and meta["command"].startswith("python -m minid3rqn train-depth")
+    assert "--seed 3" in meta["command"] and "--iterations 3" in meta["command"]
+    assert meta["data_command"].startswith("python -m minid3rqn collect")
+    assert load_sequence(run / "train.npz").meta["seed"] == 3          # the run's seed
+    assert load_sequence(run / "test.npz").meta["seed"] == 1003        # other worlds
     assert meta["machine"]["numpy"] == np.__version__ and meta["machine"]["blas_core"]
     # resume: a finished run resumes at its last iteration and does no more work
-    assert _run(["train-depth", "--smoke", "--quiet", "--resume", "--dir", str(run)]) == 0
+    assert _run(["train-depth", *SMOKE, "--seed", "3", "--resume", "--dir", str(run)]) == 0
     assert "resuming at iteration 3" in capsys.readouterr().out
-    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
-                 str(run / "test.npz"), "--json", str(tmp_path / "m.json")]) == 0
-    assert 0 <= json.loads((tmp_path / "m.json").read_text())["a1"] <= 1
-    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
-                 str(run / "test.npz"), "--flip-tta", "--json", str(tmp_path / "f.json")]) == 0
-    assert 0 <= json.loads((tmp_path / "f.json").read_text())["a1"] <= 1
-    # --posenet: the checkpoint's PoseNet is judged too, and equals the training's own
-    # final pose evaluation; a model file (DispNet only) is refused by name
-    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
-                 str(run / "test.npz"), "--posenet", str(run / "checkpoint.npz"),
-                 "--json", str(tmp_path / "p.json")]) == 0
-    got = json.loads((tmp_path / "p.json").read_text())
-    assert got["trans_err_m"] == pytest.approx(meta["results"]["trans_err_m"], abs=1e-4)
-    with pytest.raises(ValueError, match="holds no PoseNet"):
-        _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
-              str(run / "test.npz"), "--posenet", str(run / "model.npz")])
+    assert DepthEstimator.load(run / "checkpoint.npz").meta["iteration"] == 3
+    for extra in ([], ["--flip-tta"], ["--by-depth", "--pictures", str(tmp_path / "p.png")]):
+        assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
+                     str(run / "test.npz"), "--json", str(tmp_path / "m.json"), *extra]) == 0
+        got = json.loads((tmp_path / "m.json").read_text())
+        assert 0 <= got["a1"] <= 1 and got["frames"] == len(load_sequence(run / "test.npz"))
+    assert len(got["by_depth"]) == 5 and (tmp_path / "p.png").is_file()
 
 
-def test_a_raised_horizon_is_kept_with_the_data_and_the_model(tmp_path, capsys):
-    """train-depth --horizon-row films its frames with that camera and records it in the
-    model; eval-depth then films its own held-out frames the same way; frames filmed
-    with another horizon are refused by name, not silently mixed."""
-    run = tmp_path / "run"
-    assert _run(["train-depth", "--smoke", "--quiet", "--horizon-row", "4", "--dir",
-                 str(run)]) == 0
-    from minid3rqn.depth.data import load_sequence
-    from minid3rqn.depth.evaluate import DepthEstimator
-    assert load_sequence(run / "train.npz").K[1, 2] == 4.0
-    assert DepthEstimator.load(run / "model.npz").horizon_row == 4.0
-    assert DepthEstimator.load(run / "checkpoint.npz").horizon_row == 4.0
-    capsys.readouterr()
-    fresh = tmp_path / "fresh_test.npz"            # collected here, with the model's camera
-    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-frames", "6",
-                 "--test-data", str(fresh)]) == 0
-    assert load_sequence(fresh).K[1, 2] == 4.0
-    with pytest.raises(SystemExit, match="horizon at row 4.*row 15.5"):
-        _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
-              str(run / "test.npz"), "--horizon-row", "15.5"])
-    capsys.readouterr()                            # --band: the rows both cameras see
-    assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
-                 str(fresh), "--band", "4:15.5"]) == 0
-    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["band_rows"] == [0, 19]
-    with pytest.raises(SystemExit, match="eval-depth --band: expected ABOVE:BELOW"):
-        _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data", str(fresh),
-              "--band", "4"])
-    with pytest.raises(SystemExit, match="train-depth --horizon-row: Camera: horizon_row"):
-        _run(["train-depth", "--smoke", "--quiet", "--horizon-row", "40", "--dir",
-              str(tmp_path / "bad")])
+def test_fine_tune_from_a_model_file_on_given_frames(tmp_path, capsys):
+    """--init-from a model file, --data/--test-data given: the recorded command names
+    them, and the model file records the collect command of its frames."""
+    frames = tmp_path / "frames.npz"
+    assert _run(["collect", "--frames", "60", "--seed", "7", "--late-turns", "0.5",
+                 "--out", str(frames)]) == 0
+    run = tmp_path / "tuned"
+    assert _run(["train-depth", *SMOKE, "--data", str(frames), "--test-data",
+                 str(tmp_path / "held.npz"), "--init-from", str(commands.MODELS /
+                                                                "depth_basic.npz"),
+                 "--set", "full_res=true", "--set", "gyro_yaw=true", "--dir", str(run)]) == 0
+    meta = json.loads((run / "results.json").read_text())
+    for part in ("--data " + str(frames), "--init-from", "--set full_res=True",
+                 "--set gyro_yaw=True"):
+        assert part in meta["command"], meta["command"]
+    assert "--late-turns 0.5" in meta["data_command"] and "--seed 7" in meta["data_command"]
+    assert meta["config"]["loss"]["full_res"] and meta["config"]["gyro_yaw"]
+
+
+def test_recorded_command_parses_back(tmp_path):
+    """The command line a run records gives back its configs when run again."""
+    from minid3rqn.depth.losses import LossConfig
+    from minid3rqn.depth.train import train_depth_command
+    cfg = TrainConfig(iterations=10, seed=2, lr_decay_at=7, init_disp=0.1, gyro_yaw=True,
+                      loss=LossConfig(full_res=True, unmasked_weight=0.1, ssim_weight=0.5))
+    data = CollectConfig(scenario="channel", frames=90, seed=2, late_turns=0.25)
+    line = train_depth_command(cfg, data, tmp_path / "run", tmp_path / "t.npz", None,
+                               tmp_path / "init.npz")
+    p = argparse.ArgumentParser()
+    commands.add_arguments_train_depth(p)
+    args = p.parse_args(shlex.split(line)[4:])    # after "python -m minid3rqn train-depth"
+    assert from_args(TrainConfig, commands._options(args, TrainConfig, with_set=True)) == cfg
+    assert from_args(CollectConfig, commands._options(args, CollectConfig), seed=2) == data
+    assert (args.dir, args.data, args.test_data, args.init_from) == (
+        str(tmp_path / "run"), str(tmp_path / "t.npz"), None, str(tmp_path / "init.npz"))
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["collect", "--late-turns", "2"], "--late-turns: expected a number in [0.0, 1.0]"),
+    (["collect", "--scenario", "moon"], "invalid choice"),
+    (["train-depth", "--iterations", "0"], "--iterations: expected a number >= 1; got 0"),
+    (["train-depth", "--lr", "nan"], "--lr: expected a finite number"),
+    (["train-depth", "--set", "ssim_weight=2"], "--set ssim_weight: expected a number in"),
+    (["train-depth", "--set", "nope=1"], "--set: expected NAME=VALUE"),
+    (["train-depth", "--init-from", "missing.npz"], "--init-from: no file 'missing.npz'"),
+    (["eval-depth", "--model", "missing.npz"], "--model: no file 'missing.npz'"),
+])
+def test_bad_inputs_are_one_line_naming_the_option(argv, message, capsys):
+    try:
+        code = _run(argv)
+    except SystemExit as e:                       # argparse's own refusals
+        code = e.code
+    assert code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_option_budgets_and_the_default_model_from_anywhere(tmp_path):
+    """collect <= 7, train-depth <= 14, eval-depth <= 7 visible options (--set counted
+    once, -h not); eval-depth's default model is the shipped one from any directory."""
+    budgets = {"collect": 7, "train-depth": 14, "eval-depth": 7}
+    for name, most in budgets.items():
+        p = argparse.ArgumentParser()
+        getattr(commands, f"add_arguments_{name.replace('-', '_')}")(p)
+        shown = [a for a in p._actions if a.option_strings and "-h" not in a.option_strings]
+        assert len(shown) <= most, (name, [a.option_strings[0] for a in shown])
+    p = argparse.ArgumentParser()
+    commands.add_arguments_eval_depth(p)
+    model = Path(p.parse_args([]).model)
+    assert model.is_absolute() and model.is_file() and model.name == "depth_basic.npz"
+    out = subprocess.run([sys.executable, "-m", "minid3rqn", "eval-depth", "--help"],
+                         capture_output=True, text=True, cwd=tmp_path, timeout=120, env=ENV)
+    assert out.returncode == 0 and "depth_basic.npz" in out.stdout
 
 
 def test_example_smoke(tmp_path):
     out = subprocess.run([sys.executable, str(ROOT / "examples" / "03_train_depth.py"),
                           "--smoke", "--out", str(tmp_path)], capture_output=True, text=True,
-                         cwd=ROOT, timeout=300)
+                         cwd=ROOT, timeout=300, env=ENV)
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "emerging.png").is_file()
-
-
-def test_recorded_command_parses_back():
-    """The command line a run records (results.json, the shipped JSONs) gives the same
-    arguments when run again, also for values that start with a dash (source offsets)."""
-    import argparse
-    import shlex
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_depth(p)
-    args = p.parse_args(["--source-offsets=-2,-1,1,2", "--full-res", "--seed", "3"])
-    line = commands._command_line(args, "train-depth")
-    assert "--source-offsets=-2,-1,1,2" in line
-    again = p.parse_args(shlex.split(line)[4:])     # after "python -m minid3rqn train-depth"
-    assert vars(again) == vars(args)

@@ -3,7 +3,8 @@
 The exercises change one thing at a time: the reward, the action table, the camera, the
 TD target, the photometric error, the depth seen in training. The library takes some of
 these as arguments (``DroneEnv(actions=..., reward_fn=...)``, ``Flights(camera=...,
-actions=...)``) but its training and evaluation loops build their flights themselves.
+actions=...)``, the depth ``Trainer(..., photometric_error=...)``) but its agent's
+training and evaluation loops build their flights themselves.
 The adapters below swap, for the duration of a ``with`` block only, the one name that
 the loop looks up:
 
@@ -13,8 +14,6 @@ the loop looks up:
     with classroom_flights(depth_fn=corrupt): # around training only: the test flights
         Trainer(cfg, out).run()               # must see the depth as it is
     with td_target(my_target):                # rl.agent's double-Q target -> yours
-        ...
-    with photometric_error(my_error):         # depth.losses' photometric error -> yours
         ...
 
 Everything is restored when the block ends, also on an error.
@@ -84,19 +83,4 @@ def td_target(fn):
         yield
 
 
-@contextlib.contextmanager
-def photometric_error(fn):
-    """Inside the block the view-synthesis loss uses ``fn(pred, target) -> (N, 1, H, W)``
-    as its per-pixel photometric error (None: unchanged)."""
-    if fn is None:
-        yield
-        return
-
-    def error(pred, target, ssim_weight=None):
-        return fn(pred, target)
-
-    with patched("minid3rqn.depth.losses", "photometric_error", error):
-        yield
-
-
-__all__ = ["classroom_flights", "td_target", "photometric_error", "patched"]
+__all__ = ["classroom_flights", "td_target", "patched"]

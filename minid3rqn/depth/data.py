@@ -14,25 +14,54 @@ A sequence file (``.npz``, written atomically) holds
                                    are consecutive, in time order)
     K       (3, 3) float64         the camera intrinsics
 
-plus JSON metadata (scenario, seed, speed, dt, camera, command).
+plus JSON metadata (the ``CollectConfig``, speed, dt, camera, command).
 
 Training samples are triplets (previous, target, next) of consecutive frames of ONE
-flight; ``triplet_indices`` lists the targets, ``Sequence.triplet`` refuses frames
-that straddle two flights.
+flight; ``triplet_indices`` lists the targets, ``Sequence.batch`` refuses frames that
+straddle two flights.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..config import as_dict, at_least, between, command_line, setting, validate
 from ..io import load_npz, save_npz
+from ..world.scenarios import SCENARIOS
 
 SPEED = 2.0          # m/s, the paper's forward speed
 FRAME_DT = 0.4       # s between frames (paper, Table 2)
 SAFE = 0.5           # m: closer is a collision (paper); the pilot ends the flight there
+TEST_SEED_OFFSET = 1000   # held-out frames fly in the worlds of seed + 1000
+TEST_FRAMES = 500
+
+
+@dataclass
+class CollectConfig:
+    """The frames of one ``collect``: scripted flights in fresh worlds of a scenario."""
+    scenario: str = setting("basic", "the world the frames are filmed in", source="paper",
+                            choices=SCENARIOS)
+    frames: int = setting(5000, "frames to collect", source="paper", check=at_least(3))
+    seed: int = setting(0, "flight f flies in the world of seed x 100003 + f", source="run")
+    late_turns: float = setting(0.0, "share of the pilot's segments flown straight at "
+                                     "obstacles, swerving late (0: the careful pilot)",
+                                source="ours", check=between(0.0, 1.0), cli="main")
+    frame_dt: float = setting(FRAME_DT, "seconds between frames", source="paper",
+                              check=lambda v: None if 0 < v <= 2 else "seconds in (0, 2]")
+    frames_per_flight: int = setting(50, "the longest flight, in frames", source="ours",
+                                     check=at_least(3))
+
+    def __post_init__(self):
+        validate(self)
+
+
+def held_out(cfg: CollectConfig, frames: int = TEST_FRAMES) -> CollectConfig:
+    """The held-out frames that go with training frames ``cfg``: the same scenario,
+    other worlds (seed + 1000), the careful pilot, a frame every 0.4 s."""
+    return CollectConfig(scenario=cfg.scenario, frames=frames,
+                         seed=cfg.seed + TEST_SEED_OFFSET)
 
 
 # -- the scripted pilot ----------------------------------------------------------------
@@ -102,42 +131,27 @@ def _render(scene, poses, camera):
 
 
 def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0,
-        frame_dt: float = FRAME_DT, crab_deg: float = 0.0) -> np.ndarray:
+        frame_dt: float = FRAME_DT) -> np.ndarray:
     """One scripted flight of up to ``n_frames`` camera poses (fewer if it comes too
     close); ``late``: the pilot's share of late-turn segments (``ScriptedPilot``);
-    ``frame_dt``: seconds between frames (the pilot decides at every frame).
-
-    ``crab_deg``: the largest *crab angle*, drawn once per flight uniformly in
-    [-crab_deg, crab_deg]. A quadrotor need not point where it flies: with crab angle
-    beta its course (the direction of motion, which the pilot steers) is its heading
-    + beta, so the camera looks beta to the side of the motion. The focus of expansion,
-    the image point with no parallax, then sits at x_n = tan(beta) instead of the image
-    centre, and what lies straight ahead of the camera moves across the view (an
-    experiment: it did not cure the bias ahead; docs/depth.md section 7, "Is it the
-    focus of expansion?"). 0 (default) draws nothing, so a flight without crab is the
-    same as before the option existed.
-    """
+    ``frame_dt``: seconds between frames (the pilot decides at every frame)."""
     from ..world.distance import nearest_distance, sample_start_pose
     from ..world.kinematics import integrate_arc
     pilot = ScriptedPilot(scene, rng, late=late)
-    course = sample_start_pose(scene, rng)      # (x, y, direction of motion)
-    beta = float(np.deg2rad(rng.uniform(-crab_deg, crab_deg))) if crab_deg > 0 else 0.0
-    crab = np.array([0.0, 0.0, beta])           # camera pose = course - crab
-    poses = [course - crab]
+    poses = [sample_start_pose(scene, rng)]
     while len(poses) < n_frames:
-        w = pilot(course)
+        w = pilot(poses[-1])
         # Check clearance along the step, every 0.1 m.
-        path = _arc_points(course, w, frame_dt, 8)
+        path = _arc_points(poses[-1], w, frame_dt, 8)
         if nearest_distance(scene, path).min() < SAFE:
             break
-        course = integrate_arc(course, SPEED, w, frame_dt)
-        poses.append(course - crab)
+        poses.append(integrate_arc(poses[-1], SPEED, w, frame_dt))
     return np.stack(poses)
 
 
 def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: int = 50,
             seed: int = 0, camera=None, progress: bool = True, late: float = 0.0,
-            frame_dt: float = FRAME_DT, crab_deg: float = 0.0) -> dict:
+            frame_dt: float = FRAME_DT) -> dict:
     """Fly scripted flights in fresh scenes of ``scenario`` until ``n_frames`` frames.
 
     Flight f flies in ``make_scene(scenario, seed=seed * 100003 + f)``; flights shorter
@@ -146,14 +160,10 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
     the arrays of a sequence file. ``late``: the pilot's share of late-turn segments
     (``ScriptedPilot``; 0, the default, is the careful pilot). ``frame_dt``: seconds
     between frames (paper: 0.4 s; a camera films faster than the pilot decides, and
-    a shorter step means smaller image motion for view synthesis: docs/depth.md).
-    ``crab_deg``: the largest crab angle (heading off the course), per flight (``fly``).
+    a shorter step means smaller image motion for view synthesis).
     """
     if not 0.0 < frame_dt <= 2.0:
         raise ValueError(f"collect: frame_dt must be in (0, 2] s; got {frame_dt}")
-    if not 0.0 <= crab_deg <= 40.0:
-        raise ValueError(f"collect: crab_deg must be in [0, 40] degrees (the focus of "
-                         f"expansion must stay in the 90 degree view); got {crab_deg}")
     from ..world.camera import Camera
     from ..world.scenarios import make_scene
     if n_frames < 3:
@@ -170,8 +180,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         bar = tqdm(total=n_frames, desc=f"collect {scenario}", unit="frame")
     while n_frames - total >= 3:        # a last flight of 1-2 frames would hold no triplet
         scene = make_scene(scenario, seed=seed * 100003 + f)
-        poses = fly(scene, min(frames_per_flight, n_frames - total), rng, late, frame_dt,
-                    crab_deg)
+        poses = fly(scene, min(frames_per_flight, n_frames - total), rng, late, frame_dt)
         f += 1
         if len(poses) < 3:
             continue
@@ -189,7 +198,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
     return {"rgb": np.concatenate(rgb), "depth": np.concatenate(depth),
             "pose": np.concatenate(pose), "flight": np.concatenate(flight),
             "K": camera.K, "camera": (camera.height, camera.width, camera.hfov_deg, camera.cy),
-            "dt": frame_dt, "crab_deg": crab_deg}
+            "dt": frame_dt}
 
 
 def save_sequence(path, data: dict, metadata: dict | None = None) -> Path:
@@ -197,8 +206,6 @@ def save_sequence(path, data: dict, metadata: dict | None = None) -> Path:
     meta = dict(metadata or {})
     meta.setdefault("speed", SPEED)
     meta.setdefault("dt", data.get("dt", FRAME_DT))
-    if data.get("crab_deg"):
-        meta.setdefault("crab_deg", data["crab_deg"])
     meta["camera"] = list(data.get("camera", ()))
     return save_npz(path, arrays, meta)
 
@@ -257,38 +264,21 @@ class Sequence:
     def triplet_indices(self) -> np.ndarray:
         return triplet_indices(self.flight)
 
-    def triplet(self, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(previous, target, next) frames around target index t, from one flight."""
-        if not 1 <= t < len(self) - 1:
-            raise IndexError(f"Sequence.triplet: target {t} needs frames {t - 1} and {t + 1}; "
-                             f"the sequence has {len(self)} frames")
-        ids = self.flight[t - 1:t + 2]
-        if not (ids[0] == ids[1] == ids[2]):
-            raise ValueError(f"Sequence.triplet: frames {t - 1}, {t}, {t + 1} come from "
-                             f"different flights {ids.tolist()}; a triplet must be three "
-                             f"consecutive frames of one flight")
-        return self.rgb[t - 1], self.rgb[t], self.rgb[t + 1]
-
-    def target_indices(self, offsets=(-1, 1)) -> np.ndarray:
-        """Frames t whose sources t + o (o in ``offsets``) all belong to t's flight."""
-        return target_indices(self.flight, offsets)
-
-    def batch(self, targets, offsets=(-1, 1)) -> tuple[np.ndarray, list[np.ndarray]]:
-        """Targets (B,) -> (target (B,3,H,W), [the frame t + o for o in ``offsets``])
-        float32 in [0, 1]; the default offsets give [previous, next]."""
+    def batch(self, targets) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Targets (B,) -> (target (B, 3, H, W), [previous, next]) float32 in [0, 1]: the
+        triplets around the targets, each from one flight."""
         targets = np.asarray(targets)
-        offsets = check_source_offsets(offsets)
+        if targets.min() < 1 or targets.max() >= len(self) - 1:
+            raise IndexError(f"Sequence.batch: every target needs the frames before and "
+                             f"after it inside the sequence of {len(self)} frames")
         ids = self.flight[targets]
-        lo, hi = min(min(offsets), 0), max(max(offsets), 0)
-        if targets.min() + lo < 0 or targets.max() + hi >= len(self):
-            raise IndexError(f"Sequence.batch: every target needs its sources at offsets "
-                             f"{list(offsets)} inside the sequence")
-        same = np.all([self.flight[targets + o] == ids for o in offsets], axis=0)
+        same = (self.flight[targets - 1] == ids) & (self.flight[targets + 1] == ids)
         if not same.all():
-            raise ValueError(f"Sequence.batch: targets {targets[~same].tolist()} have sources "
-                             f"from other flights; use target_indices() to pick targets")
+            raise ValueError(f"Sequence.batch: targets {targets[~same].tolist()} have "
+                             f"neighbours from other flights; use triplet_indices() to pick "
+                             f"targets")
         f = lambda idx: (self.rgb[idx].transpose(0, 3, 1, 2).astype(np.float32) / 255.0)
-        return f(targets), [f(targets + o) for o in offsets]
+        return f(targets), [f(targets - 1), f(targets + 1)]
 
     def select_flights(self, flights) -> "Sequence":
         keep = np.isin(self.flight, np.asarray(flights))
@@ -297,30 +287,22 @@ class Sequence:
                         None if self.pose is None else self.pose[keep], self.meta)
 
 
-def check_source_offsets(offsets) -> tuple[int, ...]:
-    """The offsets as a tuple of distinct non-zero ints, or a ValueError."""
-    offsets = tuple(int(o) for o in offsets)
-    if not offsets or 0 in offsets or len(set(offsets)) != len(offsets):
-        raise ValueError(f"source offsets must be distinct non-zero frame offsets; got "
-                         f"{list(offsets)}")
-    return offsets
-
-
-def target_indices(flight, offsets=(-1, 1)) -> np.ndarray:
-    """Indices t such that every frame t + o (o in ``offsets``) belongs to t's flight."""
-    flight = np.asarray(flight)
-    offsets = check_source_offsets(offsets)
-    lo, hi = -min(min(offsets), 0), max(max(offsets), 0)
-    if len(flight) <= lo + hi:
-        return np.zeros(0, dtype=np.int64)
-    t = np.arange(lo, len(flight) - hi)
-    same = np.all([flight[t + o] == flight[t] for o in offsets], axis=0)
-    return t[same]
-
-
 def triplet_indices(flight) -> np.ndarray:
     """Indices t whose frames t-1, t, t+1 all belong to the same flight."""
-    return target_indices(flight, (-1, 1))
+    flight = np.asarray(flight)
+    t = np.arange(1, max(len(flight) - 1, 1))
+    return t[(flight[t - 1] == flight[t]) & (flight[t + 1] == flight[t])]
+
+
+def collect_sequence(cfg: CollectConfig, path, progress: bool = True) -> Sequence:
+    """Collect the frames of ``cfg``, save them to ``path`` with the ``collect`` command
+    that makes them, and return them as read back from the file."""
+    data = collect(cfg.scenario, cfg.frames, cfg.frames_per_flight, cfg.seed,
+                   progress=progress, late=cfg.late_turns, frame_dt=cfg.frame_dt)
+    command = " ".join(["python -m minid3rqn collect", *command_line(CollectConfig, cfg),
+                        "--out", str(path)])
+    save_sequence(path, data, {**as_dict(cfg), "command": command})
+    return load_sequence(path)
 
 
 def load_sequence(path) -> Sequence:
@@ -333,6 +315,6 @@ def load_sequence(path) -> Sequence:
                     arrays.get("pose"), meta)
 
 
-__all__ = ["SPEED", "FRAME_DT", "ScriptedPilot", "fly", "collect", "save_sequence",
-           "target_indices", "check_source_offsets",
+__all__ = ["SPEED", "FRAME_DT", "TEST_SEED_OFFSET", "CollectConfig", "held_out",
+           "ScriptedPilot", "fly", "collect", "collect_sequence", "save_sequence",
            "Sequence", "triplet_indices", "load_sequence"]

@@ -18,7 +18,6 @@ R_pred^T R_gt in degrees.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +26,6 @@ from .. import autograd as ag
 from ..io import load_npz, save_npz
 from ..nets.dispnet import DispNet
 from ..world.geometry import relative_transform
-from .cost_volume import plane_sweep_cost, sweep_depths
 from .data import Sequence
 from .geometry import pose_vec_to_mat
 
@@ -58,9 +56,8 @@ class DepthEstimator:
             the disparity is the mean of the network's disparity for the frame and,
             flipped back, for the frame mirrored left-right. A left-right mirror of a
             world is as likely as the world, so the network's errors on the two views
-            are partly independent and the mean is closer to the truth (docs/depth.md
-            section 7, "Test-time flip"). Twice the inference cost; off by default, and
-            not used in training.
+            are partly independent and the mean is closer to the truth. Twice the
+            inference cost; off by default, and not used in training.
     """
 
     def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None,
@@ -70,60 +67,33 @@ class DepthEstimator:
         self._fast = None                   # DispNetInference, built at the first predict
         self.height = self.meta.get("height", 32)
         self.width = self.meta.get("width", 104)
-        self.in_frames = getattr(dispnet, "in_frames", 1)   # 2: also reads the previous frame
-        self.cost_planes = getattr(dispnet, "cost_planes", 0)  # D: a plane-sweep cost volume
-
-    @property
-    def needs_previous(self) -> bool:
-        """Whether ``predict`` needs the frames filmed one step before (``prev``): a
-        two-frame DispNet, or one with a cost volume (which also needs ``motion``)."""
-        return self.in_frames == 2 or self.cost_planes > 0
-
-    @property
-    def horizon_row(self) -> float:
-        """The horizon row of the frames it was trained on (train-depth --horizon-row;
-        files written before that option existed: the middle row)."""
-        return float(self.meta.get("horizon_row", (self.height - 1) / 2.0))
 
     # -- files -----------------------------------------------------------------------
     def save(self, path, extra: dict | None = None) -> Path:
-        kept = {"K": self.meta["K"]} if "K" in self.meta else {}   # a cost volume's camera
         meta = {"dispnet": self.net.config(), "scale": self.scale,
-                "height": self.height, "width": self.width, **kept, **(extra or {})}
+                "height": self.height, "width": self.width, **(extra or {})}
         self.meta = meta
         state = {k: v.astype(np.float32) for k, v in self.net.state_dict().items()}
         return save_npz(path, state, meta)
 
     @classmethod
     def load(cls, path, flip: bool = False) -> "DepthEstimator":
-        """A model file written by ``save`` (or a train-depth checkpoint); ``flip``: see
-        the class doc."""
-        est = cls._load(path)
-        est.flip = bool(flip)
-        return est
-
-    @classmethod
-    def _load(cls, path) -> "DepthEstimator":
+        """A model file written by ``save`` (or a training checkpoint, whose DispNet is
+        read with scale 1: the known-speed term already trains it in metres); ``flip``:
+        see the class doc."""
         arrays, meta = load_npz(path)
         if meta and "config" in meta and "iteration" in meta:       # a training checkpoint
-            from .train import TrainConfig
-            cfg = TrainConfig.from_dict(meta["config"])
-            net = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales,
-                          in_frames=2 if cfg.prev_frame else 1,
-                          cost_planes=cfg.cost_volume)
+            net = DispNet()
             net.load_state_dict({k[5:]: v for k, v in arrays.items() if k.startswith("disp.")})
-            # With the known-speed term the network's depth is already in metres.
-            kept = {k: meta[k] for k in ("iteration", "horizon_row", "K") if k in meta}
-            return cls(net, 1.0, kept)
+            return cls(net, 1.0, {"iteration": meta["iteration"]}, flip)
         if not meta or "dispnet" not in meta:
             raise ValueError(f"DepthEstimator.load: {str(path)!r} is not a depth model file "
                              f"(no 'dispnet' metadata); write one with train-depth")
         c = meta["dispnet"]
         net = DispNet(tuple(c["encoder"]), tuple(c["decoder"]), c["n_scales"],
-                      c["disp_scale"], c["min_disp"], c.get("double_conv", True),
-                      in_frames=c.get("in_frames", 1), cost_planes=c.get("cost_planes", 0))
+                      c["disp_scale"], c["min_disp"], c.get("double_conv", True))
         net.load_state_dict(arrays)
-        return cls(net, meta.get("scale", 1.0), meta)
+        return cls(net, meta.get("scale", 1.0), meta, flip)
 
     # -- inference -------------------------------------------------------------------
     # ``predict`` runs ``DispNetInference`` (nets/dispnet.py): a graph-free copy of the
@@ -150,103 +120,15 @@ class DepthEstimator:
             raise TypeError(f"DepthEstimator: rgb must be uint8 (0..255); got {rgb.dtype}")
         return rgb, single
 
-    def _input(self, rgb, prev, motion=None) -> tuple[np.ndarray, bool]:
-        """The network's channels-last input: the checked frames; with a two-frame
-        DispNet the previous frames after them on channels (N, H, W, 6); with a cost
-        volume, the frames as floats in [0, 1] and the D cost planes after them
-        (N, H, W, 3 + D)."""
-        rgb, single = self._frames(rgb)
-        if not self.needs_previous:
-            if prev is not None or motion is not None:
-                raise ValueError("DepthEstimator: this model reads one frame; prev and "
-                                 "motion (the previous frames and the motion since) are for "
-                                 "a two-frame model (train-depth --prev-frame) or one with a "
-                                 "cost volume (--cost-volume)")
-            return rgb, single
-        kind = ("reads two frames (train-depth --prev-frame)" if self.in_frames == 2 else
-                "reads a cost volume (train-depth --cost-volume)")
-        if prev is None:
-            raise ValueError(f"DepthEstimator: this model {kind}: give prev, the frames "
-                             f"filmed one step before rgb")
-        prev, _ = self._frames(prev)
-        if prev.shape != rgb.shape:
-            raise ValueError(f"DepthEstimator: prev must have rgb's shape {rgb.shape}; got "
-                             f"{prev.shape}")
-        x = np.concatenate([rgb, prev], axis=-1) if self.in_frames == 2 else rgb
-        if not self.cost_planes:
-            if motion is not None:
-                raise ValueError("DepthEstimator: motion is for a model with a cost volume "
-                                 "(train-depth --cost-volume); this one reads prev only")
-            return x, single
-        if motion is None:
-            raise ValueError(f"DepthEstimator: this model {kind}: give motion, T_{{t->t-1}} "
-                             f"(N, 4, 4), e.g. world.geometry.relative_transform(pose, "
-                             f"previous pose)")
-        motion = np.asarray(motion, dtype=np.float64)
-        if motion.ndim == 2:
-            motion = motion[None]
-        cost = plane_sweep_cost(rgb, prev, motion, self.K, sweep_depths(self.cost_planes))
-        return np.concatenate([x * np.float32(1 / 255.0), cost], axis=-1), single
-
-    @property
-    def K(self) -> np.ndarray:
-        """The intrinsics of the frames the model was trained on, from its file (``K``):
-        the cost volume warps with them."""
-        if "K" in self.meta:
-            return np.asarray(self.meta["K"], dtype=np.float64)
-        raise ValueError("DepthEstimator: this model file has no intrinsics 'K' in its "
-                         "metadata, which its cost volume needs; train-depth writes them")
-
-    def sequence_targets(self, seq: Sequence, idx=None, with_previous: bool = False
-                         ) -> np.ndarray:
-        """The frames of ``seq`` (of ``idx``, default all) this model can predict: all of
-        them, or for a two-frame model (or with ``with_previous``, to score a one-frame
-        model on the same frames) those with a previous frame in their flight."""
-        idx = np.arange(len(seq)) if idx is None else np.asarray(idx)
-        if not self.needs_previous and not with_previous:
-            return idx
-        return idx[(idx > 0) & (seq.flight[np.maximum(idx - 1, 0)] == seq.flight[idx])]
-
-    def predict_sequence(self, seq: Sequence, idx) -> np.ndarray:
-        """Depth (N, H, W) of the frames ``idx`` of ``seq`` (each with its previous frame,
-        for a two-frame or cost-volume model: ``sequence_targets`` lists the frames that
-        have one; a cost volume also takes the motion between them from ``seq.pose``,
-        the odometry of the flight)."""
-        idx = np.asarray(idx)
-        if not self.needs_previous:
-            return self.predict(seq.rgb[idx])
-        ok = self.sequence_targets(seq, idx)
-        if len(ok) != len(idx):
-            raise ValueError("DepthEstimator.predict_sequence: a two-frame or cost-volume "
-                             "model needs the previous frame of each frame in its flight; "
-                             "pick the frames with sequence_targets")
-        return self.predict(seq.rgb[idx], prev=seq.rgb[idx - 1],
-                            motion=self.sequence_motion(seq, idx))
-
-    def sequence_motion(self, seq: Sequence, idx) -> np.ndarray | None:
-        """T_{t->t-1} (N, 4, 4) of the frames ``idx`` of ``seq`` for a cost-volume model
-        (None for others): the relative transform of the poses filmed."""
-        if not self.cost_planes:
-            return None
-        if seq.pose is None:
-            raise ValueError("DepthEstimator: a cost-volume model needs the motion between "
-                             "frames; this sequence has no poses")
-        idx = np.asarray(idx)
-        return relative_transform(seq.pose[idx], seq.pose[idx - 1])
-
-    def predict_disp(self, rgb, batch_size: int = 64, prev=None, motion=None) -> np.ndarray:
+    def predict_disp(self, rgb) -> np.ndarray:
         """rgb uint8 (N, H, W, 3) or (H, W, 3) -> network disparity (N, H, W) float32.
 
         Equal (to float32 round-off) to ``predict_disp_autograd``, the autograd forward
         ``net(rgb as (N, 3, H, W) float32 / 255, scales=1)[0]``; computed by the
-        graph-free ``DispNetInference``. ``batch_size`` is kept for compatibility (the
-        inference path runs its own chunks). With ``flip``: the mean of that and its value
-        on the mirrored frames, mirrored back (for a cost volume, mirroring its planes is
-        the same as building it from the mirrored frames and motion). ``prev``: the
-        frames before ``rgb``, for a two-frame or cost-volume model (and only for one);
-        ``motion``: T_{t->t-1} (N, 4, 4), for a cost-volume model.
+        graph-free ``DispNetInference``. With ``flip``: the mean of that and its value on
+        the mirrored frames, mirrored back.
         """
-        rgb, single = self._input(rgb, prev, motion)
+        rgb, single = self._frames(rgb)
         if self._fast is None:
             self._fast = self.net.inference()
         out = self._fast(rgb).astype(np.float32, copy=False)
@@ -255,26 +137,20 @@ class DepthEstimator:
             out = 0.5 * (out + mirrored[:, :, ::-1].astype(np.float32, copy=False))
         return out[0] if single else out
 
-    def predict_disp_autograd(self, rgb, batch_size: int = 64, prev=None, motion=None
-                              ) -> np.ndarray:
+    def predict_disp_autograd(self, rgb, batch_size: int = 64) -> np.ndarray:
         """``predict_disp`` through the autograd forward (``DispNet.forward`` under
-        ``no_grad``), as it was computed before the inference path: the reference for
-        tests and benchmarks."""
-        rgb, single = self._input(rgb, prev, motion)
-        unit = 1 / 255.0 if rgb.dtype == np.uint8 else 1.0     # a cost-volume input: floats
+        ``no_grad``): the reference for tests and benchmarks."""
+        rgb, single = self._frames(rgb)
         out = np.empty(rgb.shape[:3], dtype=np.float32)
         with ag.no_grad():
             for k in range(0, len(rgb), batch_size):
-                x = rgb[k:k + batch_size].transpose(0, 3, 1, 2).astype(np.float32) * unit
+                x = rgb[k:k + batch_size].transpose(0, 3, 1, 2).astype(np.float32) * (1 / 255.0)
                 out[k:k + batch_size] = self.net(x, scales=1)[0].data[:, 0]
         return out[0] if single else out
 
-    def predict(self, rgb, batch_size: int = 64, prev=None, motion=None) -> np.ndarray:
-        """rgb uint8 (N, H, W, 3) -> depth float32 (N, H, W) in metres (see class doc);
-        a two-frame model also needs ``prev``, the frames filmed one step before, and a
-        cost-volume model ``prev`` and ``motion``, T_{t->t-1} (N, 4, 4)."""
-        return (self.scale / self.predict_disp(rgb, batch_size, prev, motion)
-                ).astype(np.float32)
+    def predict(self, rgb) -> np.ndarray:
+        """rgb uint8 (N, H, W, 3) -> depth float32 (N, H, W) in metres (see class doc)."""
+        return (self.scale / self.predict_disp(rgb)).astype(np.float32)
 
 
 # -- metrics -----------------------------------------------------------------------------
@@ -324,27 +200,11 @@ def depth_metrics(pred, gt, min_depth: float = 0.1, max_depth: float = 50.0,
 DEPTH_BINS = (0.0, 2.0, 4.0, 7.0, 12.0, 50.0)
 
 
-COLUMNS = ("all", "centre", "sides")
-
-
-def errors_by_depth(pred, gt, bins=DEPTH_BINS, median_scaling: bool = True,
-                    columns: str = "all") -> list[dict]:
+def errors_by_depth(pred, gt, bins=DEPTH_BINS) -> list[dict]:
     """Where the errors are: per GT-depth bin, the share of pixels, the mean abs rel and
     the mean signed relative error (pred - gt) / gt (> 0: too far), after the same
-    alignment as ``depth_metrics`` (per-image median scaling, or with
-    ``median_scaling=False`` the model's own metric scale). (N, H, W) inputs.
-
-    ``columns``: "all", "centre" (the middle half of the image width: what lies ahead,
-    where a collision comes from) or "sides" (the outer quarters: what the drone passes).
-    Shares are of the pixels in those columns."""
-    if columns not in COLUMNS:
-        raise ValueError(f"errors_by_depth: columns must be one of {COLUMNS}; got {columns!r}")
-    p, g, ok = align_to_gt(pred, gt, median_scaling=median_scaling, name="errors_by_depth")
-    if columns != "all":
-        w = g.shape[-1]
-        centre = np.zeros(w, bool)
-        centre[w // 4: w - w // 4] = True
-        ok = ok & (centre if columns == "centre" else ~centre)
+    alignment as ``depth_metrics`` (per-image median scaling). (N, H, W) inputs."""
+    p, g, ok = align_to_gt(pred, gt, name="errors_by_depth")
     rel = (p - g) / np.where(ok, g, 1.0)
     out = []
     for lo, hi in zip(bins[:-1], bins[1:]):
@@ -417,61 +277,18 @@ def pose_errors(posenet, seq: Sequence, max_triplets: int = 500) -> dict:
         t_err.mean() / np.concatenate(t_gt_norm).mean()), "rot_err_deg": float(r_err.mean())}
 
 
-def horizon_band(K, height: int, above: float, below: float) -> np.ndarray:
-    """(H,) bool: the image rows v from ``above`` rows above the horizon (row cy = K[1, 2])
-    to ``below`` rows below it, -above <= v - cy <= below. Two cameras with different
-    horizon rows (``Camera.horizon_row``) see the same band of directions there, so
-    their depth can be scored on the same part of the world."""
-    if above < 0 or below < 0:
-        raise ValueError(f"horizon_band: above and below must be >= 0 rows; got "
-                         f"{above}, {below}")
-    off = np.arange(height) - float(K[1, 2])
-    rows = (off >= -above) & (off <= below)
-    if not rows.any():
-        raise ValueError(f"horizon_band: no image row lies from {above} rows above to "
-                         f"{below} below the horizon (row {float(K[1, 2]):g} of {height})")
-    return rows
-
-
-def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None,
-             max_frames: int | None = None, rows=None, with_previous: bool = False) -> dict:
-    """Depth metrics (median-scaled and speed-scaled) on ``seq``; pose errors if given.
-    ``rows``: (H,) bool, score only these image rows (the network sees whole frames;
-    the median scaling uses the scored pixels), e.g. ``horizon_band``. A two-frame model
-    is scored on the frames with a previous frame in their flight; ``with_previous``
-    scores any model on those frames only. For a two-frame model, ``prev_frame_effect``
-    says how much it reads the previous frame: the mean |ln(depth / depth with the frame
-    itself given as its previous one)|, 0 for a network that ignores it; and
-    ``prev_kernel_ratio``, the size of its first convolution's kernels for the previous
-    frame over those for the frame itself."""
+def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None) -> dict:
+    """Depth metrics of ``estimator`` on every frame of ``seq``, median-scaled and in its
+    own (speed) scale (``*_speed_scale``); with ``posenet``, its pose errors too."""
     if seq.depth is None:
         raise ValueError("evaluate: the sequence has no GT depth")
-    two = getattr(estimator, "needs_previous", False)
-    idx = estimator.sequence_targets(seq, with_previous=with_previous) \
-        if (two or with_previous) else np.arange(len(seq))
-    if max_frames and len(idx) > max_frames:
-        idx = idx[np.linspace(0, len(idx) - 1, max_frames).astype(int)]
-    pred = estimator.predict_sequence(seq, idx) if two else estimator.predict(seq.rgb[idx])
-    gt = seq.depth[idx]
-    if rows is not None:
-        pred, gt = pred[:, rows], gt[:, rows]
-    out = {"frames": int(len(idx))}
-    if two:     # how much the previous frame moves the prediction: the same frames with
-        still = estimator.predict(seq.rgb[idx], prev=seq.rgb[idx],   # no motion at all
-                                  motion=estimator.sequence_motion(seq, idx))
-        full = pred if rows is None else estimator.predict_sequence(seq, idx)
-        out["prev_frame_effect"] = float(np.mean(np.abs(np.log(full / still))))
-        w = estimator.net.enc_a[0].weight.data    # (out, 3 + 3 or D, 3, 3): frame, the rest
-        out["prev_kernel_ratio"] = float(np.linalg.norm(w[:, 3:]) / np.linalg.norm(w[:, :3]))
-    out.update(depth_metrics(pred, gt))
+    pred = estimator.predict(seq.rgb)
+    out = {"frames": len(seq)}
+    out.update(depth_metrics(pred, seq.depth))
     out.update({f"{k}_speed_scale": v for k, v in
-                depth_metrics(pred, gt, median_scaling=False).items()})
+                depth_metrics(pred, seq.depth, median_scaling=False).items()})
     if posenet is not None and seq.pose is not None:
-        if posenet.n_sources == 2:
-            out.update(pose_errors(posenet, seq))
-        else:      # a PoseNet of other sources (--source-offsets) has no GT to meet here
-            out.update({k: float("nan") for k in ("trans_err_m", "trans_err_rel",
-                                                  "rot_err_deg")})
+        out.update(pose_errors(posenet, seq))
     return out
 
 
@@ -497,5 +314,44 @@ def comparison_picture(rgb, pred, gt, path, zoom: int = 3, gap: int = 3) -> Path
     return path
 
 
+class LearningCurve:
+    """Training callback: every ``every`` iterations, the held-out abs rel / delta < 1.25 /
+    pose errors on 200 test frames, appended to ``curve.csv`` and plotted to ``curve.png``
+    (training loss beside them). Rows of a resumed run are kept (read back from the CSV)."""
+
+    COLUMNS = ("iteration", "loss", "photo", "abs_rel", "a1", "rot_err_deg", "trans_err_m")
+
+    def __init__(self, folder: Path, test: Sequence, every: int):
+        self.csv, self.png = Path(folder) / "curve.csv", Path(folder) / "curve.png"
+        self.test = test.select_flights(np.unique(test.flight)[:4])  # 4 flights x 50 frames
+        self.every = every
+        self.rows = []
+        if self.csv.is_file():
+            lines = self.csv.read_text().splitlines()[1:]
+            self.rows = [dict(zip(self.COLUMNS, map(float, line.split(",")))) for line in lines]
+
+    def __call__(self, trainer, row) -> None:
+        from ..viz import line_plot
+        it = trainer.iteration
+        if not self.every or (it % self.every and it != trainer.cfg.iterations):
+            return
+        if self.rows and self.rows[-1]["iteration"] >= it:
+            return
+        r = evaluate(DepthEstimator(trainer.disp), self.test, posenet=trainer.pose)
+        self.rows.append({"iteration": it, "loss": row["loss"], "photo": row["photo"],
+                          **{k: r[k] for k in self.COLUMNS[3:]}})
+        text = ",".join(self.COLUMNS) + "\n" + "".join(
+            ",".join(f"{rw[k]:.6g}" for k in self.COLUMNS) + "\n" for rw in self.rows)
+        tmp = self.csv.with_suffix(".csv.tmp")
+        tmp.write_text(text)
+        tmp.replace(self.csv)
+        its = [rw["iteration"] for rw in self.rows]
+        line_plot({"held-out abs rel": (its, [rw["abs_rel"] for rw in self.rows]),
+                   "held-out delta<1.25": (its, [rw["a1"] for rw in self.rows])},
+                  self.png, title="train-depth: held-out depth quality (200 frames)",
+                  xlabel="iteration", ylim=(0.0, 1.0))
+
+
 __all__ = ["METRICS", "DepthEstimator", "align_to_gt", "depth_metrics", "errors_by_depth",
-           "pose_errors", "evaluate", "comparison_picture"]
+           "log_error_parts", "pose_errors", "evaluate", "comparison_picture",
+           "LearningCurve"]

@@ -1,6 +1,7 @@
 """View-synthesis geometry on autograd Tensors: pose vectors, back-projection, the warp.
 
-The equation every function here serves (SfMLearner, Zhou et al. 2017, Eq. 2):
+The equation every function here serves (the paper's Eq. 3; SfMLearner, Zhou et al.
+2017, Eq. 2):
 
     p_s ~ K T_{t->s} D_t(p_t) K^-1 p_t
 

@@ -1,69 +1,122 @@
-"""The self-supervised depth loss: photometric view synthesis plus disparity smoothness.
+"""The view-synthesis loss that trains DispNet and PoseNet without depth labels.
 
-For a target frame I_t, its sources I_s (s = previous, next), the predicted disparity
-at scales i = 0..n-1 and the predicted poses T_{t->s}:
+The paper's loss (Eq. 2, after SfMLearner, Zhou et al. 2017):
 
-    D_t^i       = 1 / disp_i, I^i = I downsampled 2^i x (area mean), K^i = K scaled
-                  (SfMLearner; ``full_res``: D_t^i = 1 / upsample(disp_i) and full-size
-                  images, as monodepth2)
-    I_s->t^i    = inverse_warp(I_s^i, D_t^i, T_{t->s}, K^i)    geometry.inverse_warp
-    pe(a, b)    = alpha (1 - SSIM(a, b)) / 2 + (1 - alpha) |a - b|,  mean over RGB
-                                                               photometric_error
-    e^i(p)      = min_s pe(I_s->t^i, I_t)(p)      per-pixel minimum over the sources,
-                  over the sources whose warp lands inside the image (min_reprojection;
-                  else the mean of pe over all pixels and sources, as SfMLearner)
-    L_photo     = (1/n) sum_i mean_p min(e^i(p), min_s pe(I_s^i, I_t^i)(p))
-                  (auto-masking as in monodepth2: a pixel that the *unwarped* sources
-                  explain better costs that constant error and sends no gradient;
-                  without it L_photo = mean_{i,p} e^i(p))
-    L_smooth    = (1/n) sum_i 2^-i mean_p (|dx d*| e^{-|dx I|} + |dy d*| e^{-|dy I|})
-                  d* = disp_i / mean(disp_i) (mean-normalised, so shrinking the
-                  disparity cannot cheat), I the target at scale i; edge-aware weights
-                  e^{-|grad I|} are 1 when ``edge_aware`` is False   smoothness_loss
-    L_speed     = mean_{n,s} | |t_{t->s}| - k_s v dt |  (k_s frames between t and s;
-                  optional, weight mu: the drone's
-                  known speed, 2 m/s x 0.4 s = 0.8 m between frames, as PackNet-SfM's
-                  velocity supervision; it fixes the scale to metres and speeds up
-                  the pose; it reads no ground truth)
-    L           = L_photo + lambda L_smooth + mu L_speed        view_synthesis_loss
+    L_vs = sum_s sum_p | I_t(p) - Î_s(p) |
+
+I_t is the target frame, s runs over its neighbours I_{t-1} and I_{t+1}, p over the
+pixels, and Î_s is the target view synthesized from source s. Each target pixel p_t
+is carried into the source with the predicted depth D_t and motion T_{t->s} (Eq. 3)
+
+    p_s ~ K T_{t->s} D_t(p_t) K^-1 p_t
+
+and Î_s(p_t) = I_s(p_s), read bilinearly (``depth.geometry.inverse_warp``). The first
+two functions below are these equations: ``reconstruction_errors`` gives the error of
+every source and pixel, and with ``l1_error`` their sum is L_vs.
+
+What we train with adds, to that one equation, pieces from later work (each marked
+[name] where it is implemented):
+
+    [SSIM]       pe(a, b) = alpha (1 - SSIM(a, b)) / 2 + (1 - alpha) |a - b|, mean over
+                 RGB, alpha = 0.85 (monodepth2, Godard et al. 2019): a structural term
+                 that is less fooled by brightness. alpha = 0 is the paper's L1.
+    [min]        e(p) = min_s pe(I_t(p), Î_s(p)): the per-pixel minimum over the sources
+                 instead of their sum, skipping a source whose warp leaves the image: a
+                 pixel hidden in one neighbour is seen in the other (monodepth2).
+    [auto-mask]  each pixel costs min(e(p), min_s pe(I_t(p), I_s(p))): where an
+                 unwarped source explains the pixel better (no motion, a surface as far
+                 as the sky), the pixel costs that constant and sends no gradient
+                 (monodepth2's auto-masking, written as a minimum).
+    [unmasked]   + beta mean_p min(e(p), 1): a weak term without the mask, so that a
+                 batch the mask shuts entirely (a wrong-sign yaw, a depth far too near)
+                 still gets a gradient (ours; ``unmasked_weight``).
+    [scales]     L_photo = (1/n) sum_i of that term at each of the n = 4 scales i of
+                 the disparity. SfMLearner warps images downsampled 2^i times with the
+                 disparity of scale i; monodepth2 (our ``full_res``) upsamples each
+                 disparity and warps the full images.
+    [smooth]     lambda L_smooth, L_smooth = (1/n) sum_i 2^-i mean_p (|dx d*| e^{-|dx I|}
+                 + |dy d*| e^{-|dy I|}), d* = disp_i / mean(disp_i): edge-aware
+                 smoothness of the mean-normalised disparity (SfMLearner's smoothness
+                 term, monodepth2's form), lambda = 1e-3.
+    [speed]      mu mean_s | |t_{t->s}| - v dt |: the drone's known speed, 2 m/s x 0.4 s
+                 = 0.8 m between frames, as PackNet-SfM's velocity supervision; it fixes
+                 the scale to metres and reads no ground truth (ours), mu = 0.1.
+
+    L = L_photo + lambda L_smooth + mu L_speed                  ``view_synthesis_loss``
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from .. import autograd as ag
 from ..autograd import Tensor
+from ..autograd.conv import upsample
+from ..config import at_least, between, setting, validate
+from .data import FRAME_DT, SPEED
 from .geometry import crop, inverse_warp, pose_vec_to_mat, scale_intrinsics
 
-from ..autograd.conv import upsample
 
+# -- the paper: Eq. 2 and Eq. 3 -----------------------------------------------------------
+def l1_error(pred, target) -> Tensor:
+    """The paper's photometric error |I_t(p) - Î_s(p)|, mean over the colours.
+
+    pred, target (N, C, H, W) -> (N, 1, H, W).
+    """
+    pred, target = ag.as_tensor(pred), ag.as_tensor(target)
+    return ag.mean(ag.abs(pred - target), axis=1, keepdims=True)
+
+
+def reconstruction_errors(target, sources, depth, T, K, error=l1_error):
+    """error(Î_s(p), I_t(p)) for every source s and target pixel p.
+
+    Î_s is source s warped into the target view by Eq. 3 (``inverse_warp`` with
+    border padding: a point projected outside the source reads its nearest edge pixel).
+    With ``error = l1_error``, the sum of the result over s and p is the paper's L_vs.
+
+    Args:
+        target: (N, 3, h, w) array; sources: list of S arrays like it.
+        depth: (N, 1, h, w) Tensor, D_t; T: (S N, 4, 4) Tensor, T_{t->s} in (s, n) order.
+        K: (3, 3) intrinsics of (h, w) images; error: (pred, target) -> (M, 1, h, w).
+
+    Returns:
+        (errors, valid): errors (S, N, 1, h, w) Tensor; valid (S, N, 1, h, w) array, 1
+        where p_s falls inside source s.
+    """
+    n, _, h, w = target.shape
+    s_count = len(sources)
+    depth_all = ag.concat([depth] * s_count, axis=0) if s_count > 1 else depth
+    warped, valid = inverse_warp(np.concatenate(sources, axis=0), depth_all, T, K, "border")
+    err = error(warped, Tensor(np.concatenate([target] * s_count, axis=0)))
+    return ag.reshape(err, (s_count, n, 1, h, w)), valid.reshape(s_count, n, 1, h, w)
+
+
+# -- our additions (module docstring) -----------------------------------------------------
 SSIM_C1, SSIM_C2 = 0.01 ** 2, 0.03 ** 2
-INVALID = 1.0e3      # added to the error of out-of-view pixels so the minimum skips them
+INVALID = 1.0e3         # added to the error of out-of-view pixels so the minimum skips them
+SMOOTH_WEIGHT = 1e-3    # lambda (monodepth2)
+SPEED_WEIGHT = 0.1      # mu (ours)
+STEP = SPEED * FRAME_DT  # metres flown between frames: 2 m/s x 0.4 s (the paper's)
 
 
 @dataclass
 class LossConfig:
-    ssim_weight: float = 0.85       # alpha; 0 gives SfMLearner's plain L1
-    smooth_weight: float = 1e-3     # lambda (monodepth2: 1e-3)
-    edge_aware: bool = True
-    smooth_order: int = 1           # 1: |grad d| (monodepth2); 2: |grad^2 d| (planes are free)
-    min_reprojection: bool = True   # per-pixel min over sources (monodepth2)
-    automask: bool = True           # monodepth2's auto-masking
-    padding: str = "border"         # sampler padding for the warp
-    full_res: bool = False          # True: monodepth2 (upsample disp); False: SfMLearner
-                                    # (downsample images: a wider basin at coarse scales)
-    unmasked_weight: float = 0.0    # beta: + beta mean(e) keeps a gradient on masked pixels
-    speed_weight: float = 0.1       # mu; 0 disables the known-speed term
-    gyro_weight: float = 0.0        # nu; > 0 adds the gyro term (needs ``gyro`` yaws)
-    step: float = 0.8               # metres flown between frames (2 m/s x 0.4 s)
+    """The settings of the view-synthesis loss (module docstring)."""
+    ssim_weight: float = setting(0.85, "alpha of the SSIM term in the photometric error "
+                                       "(monodepth2: 0.85; 0: the paper's plain L1)",
+                                 source="ours", check=between(0.0, 1.0))
+    unmasked_weight: float = setting(0.0, "beta of the unmasked photometric term beside the "
+                                           "auto-mask (0: none)", source="ours",
+                                     check=at_least(0.0))
+    full_res: bool = setting(False, "warp the full-size images with every scale's "
+                                    "disparity upsampled (monodepth2), not images "
+                                    "downsampled to the scale (SfMLearner)", source="ours")
 
-    def to_dict(self) -> dict:
-        return asdict(self)
+    def __post_init__(self):
+        validate(self)
 
 
-# -- SSIM ------------------------------------------------------------------------------
 def box3(x) -> Tensor:
     """3x3 mean filter over H, W with edge padding; separable: rows then columns."""
     x = ag.pad(x, ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
@@ -93,19 +146,39 @@ def ssim_dissimilarity(x, y) -> Tensor:
 
 
 def photometric_error(pred, target, ssim_weight: float = 0.85) -> Tensor:
-    """pe = alpha (1 - SSIM)/2 + (1 - alpha) |pred - target|, mean over channels.
+    """[SSIM] pe = alpha (1 - SSIM)/2 + (1 - alpha) |pred - target|, mean over channels.
 
-    pred, target (N, C, H, W) -> (N, 1, H, W).
+    pred, target (N, C, H, W) -> (N, 1, H, W); alpha = 0 gives ``l1_error``.
     """
-    pred, target = ag.as_tensor(pred), ag.as_tensor(target)
-    err = ag.mean(ag.abs(pred - target), axis=1, keepdims=True)
+    err = l1_error(pred, target)
     if ssim_weight > 0:
         ssim = ag.mean(ssim_dissimilarity(pred, target), axis=1, keepdims=True)
         err = ssim * ssim_weight + err * (1.0 - ssim_weight)
     return err
 
 
-# -- smoothness ------------------------------------------------------------------------
+def configured_error(cfg: LossConfig):
+    """pe with the configured alpha, as a function (pred, target) -> (N, 1, H, W)."""
+    return lambda pred, target: photometric_error(pred, target, cfg.ssim_weight)
+
+
+def masked_minimum(errors, valid, identity, unmasked_weight: float = 0.0):
+    """[min], [auto-mask], [unmasked]: the photometric term of one scale.
+
+    errors (S, N, 1, h, w) Tensor and valid (S, N, 1, h, w) from
+    ``reconstruction_errors``; identity (N, 1, h, w) array, min_s pe(I_t, I_s) of the
+    unwarped sources. Returns (scalar Tensor, mask (N, 1, h, w): 1 where the warp wins).
+    """
+    masked = errors + INVALID * (1.0 - valid)      # an out-of-view source never wins
+    best = crop(masked, (0,))
+    for s in range(1, errors.shape[0]):
+        best = ag.minimum(best, crop(masked, (s,)))                          # (N, 1, h, w)
+    photo = ag.mean(ag.minimum(best, identity))
+    if unmasked_weight > 0:
+        photo = photo + ag.mean(ag.minimum(best, 1.0)) * unmasked_weight
+    return photo, (best.data < identity).astype(identity.dtype)
+
+
 def downsample_image(image: np.ndarray, factor: int) -> np.ndarray:
     """Area-average (N, C, H, W) by ``factor`` (H, W divisible by it); NumPy, no grad."""
     if factor == 1:
@@ -116,88 +189,45 @@ def downsample_image(image: np.ndarray, factor: int) -> np.ndarray:
     return image.reshape(n, c, h // factor, factor, w // factor, factor).mean(axis=(3, 5))
 
 
-def smoothness_loss(disp, image, edge_aware: bool = True, order: int = 1) -> Tensor:
-    """mean |dx^k d*| w_x + mean |dy^k d*| w_y with d* = disp / mean(disp) per image.
+def smoothness_loss(disp, image) -> Tensor:
+    """[smooth] mean |dx d*| w_x + mean |dy d*| w_y with d* = disp / mean(disp) per image.
 
-    disp (N, 1, h, w) Tensor, image (N, C, h, w) array. ``order`` k = 1 penalises slopes
-    (monodepth2), so a plane seen at an angle pays for its depth gradient; k = 2 uses
-    the second difference d[u+1] - 2 d[u] + d[u-1], which is zero on every plane (1/Z of
-    a plane is an affine function of the pixel: walls, floor and ceiling cost nothing).
-    w = exp(-mean_c |grad I|) when ``edge_aware`` (disparity may bend where the image has
-    an edge; for k = 2 the product of the two neighbouring weights), else 1.
+    disp (N, 1, h, w) Tensor, image (N, C, h, w) array. w = exp(-mean_c |grad I|): the
+    disparity may bend where the image has an edge (edge-aware).
     """
-    if order not in (1, 2):
-        raise ValueError(f"smoothness_loss: order must be 1 or 2; got {order}")
     disp = ag.as_tensor(disp)
     a = slice(None)
     d = disp * (1.0 / (ag.mean(disp, axis=(2, 3), keepdims=True) + 1e-7))
-
-    def diff(x, axis):                       # first difference along axis 2 or 3
-        hi = [a, a, a, a]
-        lo = [a, a, a, a]
-        hi[axis], lo[axis] = slice(1, None), slice(0, -1)
-        return crop(x, tuple(hi)) - crop(x, tuple(lo))
-
-    dx, dy = diff(d, 3), diff(d, 2)
-    if order == 2:
-        dx, dy = diff(dx, 3), diff(dy, 2)
-    dx, dy = ag.abs(dx), ag.abs(dy)
-    if edge_aware:
-        image = np.asarray(image, dtype=disp.dtype)
-        wx = np.exp(-np.abs(np.diff(image, axis=3)).mean(axis=1, keepdims=True))
-        wy = np.exp(-np.abs(np.diff(image, axis=2)).mean(axis=1, keepdims=True))
-        if order == 2:
-            wx, wy = wx[..., 1:] * wx[..., :-1], wy[..., 1:, :] * wy[..., :-1, :]
-        dx, dy = dx * wx, dy * wy
-    return ag.mean(dx) + ag.mean(dy)
+    dx = crop(d, (a, a, a, slice(1, None))) - crop(d, (a, a, a, slice(0, -1)))
+    dy = crop(d, (a, a, slice(1, None))) - crop(d, (a, a, slice(0, -1)))
+    image = np.asarray(image, dtype=disp.dtype)
+    wx = np.exp(-np.abs(np.diff(image, axis=3)).mean(axis=1, keepdims=True))
+    wy = np.exp(-np.abs(np.diff(image, axis=2)).mean(axis=1, keepdims=True))
+    return ag.mean(ag.abs(dx) * wx) + ag.mean(ag.abs(dy) * wy)
 
 
-# -- the whole loss --------------------------------------------------------------------
-def _photometric_term(target, sources, depth, T, K, cfg):
-    """L_photo at one scale: target (N, 3, h, w), sources S x (N, 3, h, w), depth
-    (N, 1, h, w) Tensor, T (S N, 4, 4) Tensor in (s, n) order. Returns (Tensor, mask)."""
-    n, _, h, w = target.shape
-    s_count = len(sources)
-    dtype = target.dtype
-    depth_all = ag.concat([depth] * s_count, axis=0) if s_count > 1 else depth
-    warped, valid = inverse_warp(np.concatenate(sources, axis=0), depth_all, T, K,
-                                 cfg.padding)
-    err = photometric_error(warped, np.concatenate([target] * s_count, axis=0),
-                            cfg.ssim_weight)                          # (S N, 1, h, w)
-    err = ag.reshape(err, (s_count, n, 1, h, w))
-    valid = valid.reshape(s_count, n, 1, h, w)
-    if not cfg.min_reprojection:
-        # SfMLearner: the mean error over every pixel and source. Out-of-view pixels
-        # read 0 with "zeros" padding and so cost a large error: averaging over the
-        # valid pixels only would let a pose that pushes everything out of view win.
-        return ag.mean(err), valid
-    # A source whose warp leaves the image is skipped by the minimum (+INVALID).
-    masked = err + INVALID * (1.0 - valid) if cfg.automask else err
-    best = crop(masked, (0,))
-    for s in range(1, s_count):
-        best = ag.minimum(best, crop(masked, (s,)))                      # (N, 1, h, w)
-    if not cfg.automask:
-        return ag.mean(best), np.ones(best.shape, dtype)
-    # monodepth2's auto-mask as a minimum: a pixel costs the smaller of the best
-    # reprojection error and the best identity (unwarped) error, so the gradient flows
-    # only where the warp explains the pixel better than no motion, and no prediction
-    # can lower the loss by pushing pixels out of view.
-    identity = photometric_error(np.concatenate(sources, axis=0),
-                                 np.concatenate([target] * s_count, axis=0),
-                                 cfg.ssim_weight).data.reshape(s_count, n, 1, h, w)
-    identity = identity.min(axis=0).astype(dtype)
-    photo = ag.mean(ag.minimum(best, identity))
-    if cfg.unmasked_weight > 0:
-        # A weak unmasked term: where every warp is worse than no warp (a wrong-sign yaw,
-        # a depth far too near) the auto-mask alone sends no gradient at all.
-        photo = photo + ag.mean(ag.minimum(best, 1.0)) * cfg.unmasked_weight
-    return photo, (best.data < identity).astype(dtype)
+def at_scale(target, sources, disp, K, factor: int, full_res: bool):
+    """[scales] (target, sources, depth, K) of the scale of ``disp`` (1 / ``factor`` of
+    the images). SfMLearner: the images downsampled to the disparity's size, K scaled;
+    ``full_res`` (monodepth2): the disparity upsampled to the images, which stay whole."""
+    if full_res:
+        depth = 1.0 / (disp if factor == 1 else upsample(disp, factor, "bilinear"))
+        return target, sources, depth, K
+    return (downsample_image(target, factor), [downsample_image(s, factor) for s in sources],
+            1.0 / disp, scale_intrinsics(K, 1.0 / factor))
 
 
+def speed_loss(poses, step: float = STEP) -> Tensor:
+    """[speed] mean over images and sources of | |t_{t->s}| - step |; poses (N, S, 6)."""
+    t = crop(poses, (slice(None), slice(None), slice(0, 3)))
+    norm = ag.sqrt(ag.sum(t * t, axis=2) + 1e-12)
+    return ag.mean(ag.abs(norm - np.full(poses.shape[1], step, dtype=poses.dtype)))
 
+
+# -- the loss we train with -----------------------------------------------------------------
 def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | None = None,
-                        gyro=None, source_steps=None):
-    """L = L_photo + lambda L_smooth (module docstring) for one batch.
+                        photometric_error=None, step: float = STEP):
+    """L = L_photo + lambda L_smooth + mu L_speed (module docstring) for one batch.
 
     Args:
         target: (N, 3, H, W) float array in [0, 1].
@@ -205,95 +235,58 @@ def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | N
         disps: list of disparity Tensors, scale i of shape (N, 1, H / 2^i, W / 2^i).
         poses: (N, S, 6) Tensor of pose vectors T_{t->s}.
         K: (3, 3) intrinsics of the (H, W) images.
-        gyro: (N, S) yaw (rotation about the camera's vertical axis, ry) of T_{t->s} as
-            the drone's rate gyro measures it; used when ``config.gyro_weight`` > 0.
-        source_steps: (S,) frames between the target and each source (default all 1):
-            the known-speed term expects ``config.step`` times that.
+        photometric_error: (pred, target) -> (M, 1, h, w) Tensor, the per-pixel error
+            (default: pe with ``config.ssim_weight``; ``l1_error`` is the paper's).
+        step: metres flown between the target and each source (known from the speed).
 
     Returns:
-        (loss, info): a scalar Tensor and a dict of floats (photo, smooth, mask).
+        (loss, info): a scalar Tensor and a dict of floats (photo, smooth, mask, speed).
     """
     cfg = config or LossConfig()
+    pe = photometric_error or configured_error(cfg)
     target = np.asarray(target.data if isinstance(target, Tensor) else target)
-    dtype = target.dtype
     n, _, h, w = target.shape
-    s_count = len(sources)
-    if s_count < 1:
-        raise ValueError("view_synthesis_loss: needs at least one source frame")
-    sources = [np.asarray(s.data if isinstance(s, Tensor) else s, dtype=dtype) for s in sources]
-    for i, src in enumerate(sources):
-        if src.shape != target.shape:
-            raise ValueError(f"view_synthesis_loss: sources[{i}] has shape {src.shape}; the "
-                             f"target has {target.shape}")
+    sources = [np.asarray(s.data if isinstance(s, Tensor) else s, dtype=target.dtype)
+               for s in sources]
+    if not sources or any(s.shape != target.shape for s in sources):
+        raise ValueError(f"view_synthesis_loss: needs source frames shaped like the target "
+                         f"{target.shape}; got {[s.shape for s in sources]}")
     poses = ag.as_tensor(poses)
-    if poses.shape != (n, s_count, 6):
-        raise ValueError(f"view_synthesis_loss: poses must be (N, S, 6) = {(n, s_count, 6)}; "
-                         f"got {poses.shape}")
-    n_sc = len(disps)
-
+    if poses.shape != (n, len(sources), 6):
+        raise ValueError(f"view_synthesis_loss: poses must be (N, S, 6) = "
+                         f"{(n, len(sources), 6)}; got {poses.shape}")
     # Pose matrices for every (source, image): batch order (s, n).
-    T = pose_vec_to_mat(ag.reshape(ag.transpose(poses, (1, 0, 2)), (s_count * n, 6)))
-    photos, masks = [], []
+    T = pose_vec_to_mat(ag.reshape(ag.transpose(poses, (1, 0, 2)), (len(sources) * n, 6)))
+    photos, smooths, masks = [], [], []
     for i, disp in enumerate(disps):
         factor = 2 ** i
         if disp.shape != (n, 1, -(-h // factor), -(-w // factor)):
             raise ValueError(f"view_synthesis_loss: disps[{i}] must be (N, 1, H/{factor}, "
-                             f"W/{factor}) = {(n, 1, h // factor, w // factor)}; got {disp.shape}")
-        if cfg.full_res:          # monodepth2: upsample the disparity, warp full images
-            depth = 1.0 / (disp if factor == 1 else upsample(disp, factor, "bilinear"))
-            tgt_i, srcs_i, K_i = target, sources, K
-        else:                     # SfMLearner: warp images downsampled to the scale
-            depth = 1.0 / disp
-            tgt_i = downsample_image(target, factor)
-            srcs_i = [downsample_image(src, factor) for src in sources]
-            K_i = scale_intrinsics(K, 1.0 / factor)
-        photo_i, mask_i = _photometric_term(tgt_i, srcs_i, depth, T, K_i, cfg)
+                             f"W/{factor}) = {(n, 1, h // factor, w // factor)}; got "
+                             f"{disp.shape}")
+        tgt_i, srcs_i, depth, K_i = at_scale(target, sources, disp, K, factor, cfg.full_res)
+        errors, valid = reconstruction_errors(tgt_i, srcs_i, depth, T, K_i, pe)
+        identity = pe(Tensor(np.concatenate(srcs_i)),            # the unwarped sources
+                      Tensor(np.concatenate([tgt_i] * len(srcs_i)))).data
+        identity = identity.reshape(errors.shape).min(axis=0).astype(target.dtype)
+        photo_i, mask_i = masked_minimum(errors, valid, identity, cfg.unmasked_weight)
         photos.append(photo_i)
-        masks.append(mask_i)
-    photo = photos[0]
-    for term in photos[1:]:
-        photo = photo + term
-    photo = photo * (1.0 / n_sc)
-    mask = np.concatenate([m.ravel() for m in masks])
-
-    smooth = None
-    for i, disp in enumerate(disps):
-        term = smoothness_loss(disp, downsample_image(target, 2 ** i), cfg.edge_aware,
-                               cfg.smooth_order)
-        term = term * (1.0 / 2 ** i)
-        smooth = term if smooth is None else smooth + term
-    smooth = smooth * (1.0 / n_sc)
-    loss = photo + smooth * cfg.smooth_weight
+        masks.append(mask_i.ravel())
+        smooths.append(smoothness_loss(disp, downsample_image(target, factor))
+                       * (1.0 / factor))
+    photo, smooth, speed = _mean(photos), _mean(smooths), speed_loss(poses, step)
+    loss = photo + smooth * SMOOTH_WEIGHT + speed * SPEED_WEIGHT
     info = {"photo": float(photo.data), "smooth": float(smooth.data),
-            "mask": float(mask.mean())}
-    if cfg.speed_weight > 0:
-        t = crop(poses, (slice(None), slice(None), slice(0, 3)))
-        norm = ag.sqrt(ag.sum(t * t, axis=2) + 1e-12)
-        if source_steps is None:
-            expected = cfg.step
-        else:
-            expected = cfg.step * np.asarray(source_steps, dtype=poses.dtype)
-            if expected.shape != (s_count,):
-                raise ValueError(f"view_synthesis_loss: source_steps needs one entry per "
-                                 f"source ({s_count}); got shape {expected.shape}")
-        speed = ag.mean(ag.abs(norm - expected))
-        loss = loss + speed * cfg.speed_weight
-        info["speed"] = float(speed.data)
-    if cfg.gyro_weight > 0:
-        # The gyro term: L_gyro = mean |ry - ry_gyro|. A drone's rate gyro measures its
-        # yaw between frames; pulling PoseNet's yaw toward it is visual-inertial
-        # learning (it reads no depth). Without it PoseNet may never find the yaw's sign
-        # in the open basic world (docs/depth.md).
-        if gyro is None or np.shape(gyro) != (n, s_count):
-            raise ValueError(f"view_synthesis_loss: gyro_weight > 0 needs gyro yaws of shape "
-                             f"(N, S) = {(n, s_count)}; got "
-                             f"{None if gyro is None else np.shape(gyro)}")
-        ry = crop(poses, (slice(None), slice(None), 4))
-        gyro_term = ag.mean(ag.abs(ry - np.asarray(gyro, dtype=poses.dtype)))
-        loss = loss + gyro_term * cfg.gyro_weight
-        info["gyro"] = float(gyro_term.data)
+            "mask": float(np.concatenate(masks).mean()), "speed": float(speed.data)}
     return loss, info
 
 
-__all__ = ["LossConfig", "box3", "ssim_dissimilarity", "photometric_error",
-           "downsample_image", "smoothness_loss", "view_synthesis_loss"]
+def _mean(terms: list) -> Tensor:
+    total = terms[0]
+    for term in terms[1:]:
+        total = total + term
+    return total * (1.0 / len(terms))
+
+__all__ = ["l1_error", "reconstruction_errors", "LossConfig", "box3", "ssim_dissimilarity",
+           "photometric_error", "configured_error", "masked_minimum", "downsample_image",
+           "smoothness_loss", "at_scale", "speed_loss", "view_synthesis_loss"]

@@ -1,12 +1,18 @@
 """The training loop: DispNet + PoseNet by view synthesis, with exact resumption.
 
-One iteration:
+One iteration (the paper's training, as SfMLearner trains):
 
-    targets  <- B random triplet centres (rng seeded by ``seed``)
+    targets  <- B random triplet centres (rng seeded by ``seed``); each triplet is
+                mirrored left-right with probability 1/2 (a mirrored flight is a flight
+                in a mirrored world: SfMLearner's and monodepth2's augmentation)
     disps    =  DispNet(I_t)                       multi-scale disparity
     poses    =  PoseNet(I_t, [I_t-1, I_t+1])       T_{t->s}, (B, 2, 6)
     loss     =  view_synthesis_loss(...)           losses.py
     Adam step on both networks
+
+``gyro_yaw`` (ours): the yaw of T_{t->s} comes from the drone's rate gyro (simulated:
+the true yaw change plus noise) instead of PoseNet; PoseNet still gives the
+translation and the small pitch and roll.
 
 Every ``checkpoint_every`` iterations the networks, Adam's moments, the sampler's RNG
 state and the log go into one ``.npz`` (written atomically); ``resume=True`` picks up
@@ -19,133 +25,102 @@ is known (2 m/s x 0.4 s = 0.8 m between frames), so
     scale = 0.8 / mean |t_pred|      over the training triplets
 
 and depth = scale / disp is in metres (up to PoseNet's accuracy). ``DepthEstimator``
-applies it.
+applies it. ``train_depth`` is a whole run: the frames, the training, the held-out
+evaluation and the model file.
 """
 from __future__ import annotations
 
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from .. import autograd as ag
 from ..autograd.optim import Adam
-from ..io import load_npz, save_npz
+from ..config import as_dict, at_least, command_line, positive, setting, validate
+from ..io import load_npz, machine, save_npz
 from ..nets.dispnet import DispNet
 from ..nets.posenet import PoseNet
 from ..world.geometry import relative_transform
-from .data import FRAME_DT, SPEED, Sequence
-from .cost_volume import plane_sweep_cost, sweep_depths
+from .data import CollectConfig, Sequence, collect_sequence, held_out, load_sequence
+from .evaluate import DepthEstimator, LearningCurve, comparison_picture, evaluate
 from .geometry import matrix_to_pose_vec
-from .losses import LossConfig, view_synthesis_loss
+from .losses import STEP, LossConfig, view_synthesis_loss
+
+OFFSETS = (-1, 1)        # the sources of target t: frames t - 1 and t + 1 (the paper's)
+POSE_SCALE = 0.1         # PoseNet's output scale (SfMLearner: 0.01; our frames move 0.8 m)
+POSE_HEAD_GAIN = 0.1     # PoseNet's head starts small: the first poses are near its bias
+GYRO_NOISE = 0.005       # rad: std of the simulated gyro's yaw error per frame pair
 
 
 @dataclass
 class TrainConfig:
-    iterations: int = 3000          # paper: 30000 at 128x416; scaled to our budget
-    batch_size: int = 4             # paper
-    lr: float = 5e-4                # paper: 5e-5; 10x trains faster here (docs/depth.md)
-    lr_decay_at: int | None = None  # from this iteration on, lr x 0.1 (monodepth2-style step)
-    seed: int = 0
-    checkpoint_every: int = 250
-    log_every: int = 25
-    flip: bool = True               # random horizontal flips of whole triplets
-    encoder: tuple = (16, 32, 64, 96)
-    decoder: tuple = (16, 16, 32, 64)
-    n_scales: int = 4
-    init_disp: float | None = 0.5   # heads start at disp 0.5 (depth 2): log-middle of range
-    pose_scale: float = 0.1         # SfMLearner: 0.01; our frames move 0.8 m and 0.2 rad
-    pose_head_gain: float = 0.1
-    pose_rot_scale: float | None = None      # rotation output scale (None: pose_scale)
-    pose_dof: int = 6               # 6: SfMLearner; 3: planar (tx, tz, yaw)
-    pose_init_forward: float | None = 0.8    # start PoseNet at tz = +-0.8 m (forward flight)
-    gt_pose: bool = False           # ablation: warp with the GT relative poses, not PoseNet's
-    gyro_noise: float = 0.005       # rad: std of the simulated gyro's yaw error per frame pair
-    gyro_yaw: bool = False          # warp with the gyro's yaw in place of PoseNet's
-    source_offsets: tuple = (-1, 1)  # the sources of target t: frames t + o (SfMLearner: -1, 1)
-    prev_frame: bool = False        # ours: the DispNet also reads frame t - 1 (two frames in)
-    cost_volume: int = 0            # ours: D > 0, it also reads a plane-sweep cost volume of
-                                    # D depths against frame t - 1 (depth/cost_volume.py)
-    loss: LossConfig = field(default_factory=LossConfig)
+    """The settings of one depth training run (see the module docstring)."""
+    iterations: int = setting(3000, "training iterations (paper: 30000 at 128x416)",
+                              source="budget", check=at_least(1))
+    batch_size: int = setting(4, "triplets per iteration", source="paper", check=at_least(1))
+    lr: float = setting(5e-4, "Adam's learning rate (paper: 5e-5; 10x trains faster here)",
+                        source="budget", check=positive)
+    seed: int = setting(0, "weights, batches, flips, gyro noise (and the frames train-depth "
+                           "collects)", source="run")
+    lr_decay_at: int | None = setting(None, "from this iteration on, lr x 0.1 (none: never)",
+                                      source="ours", check=at_least(1))
+    init_disp: float = setting(0.5, "disparity the heads start at (1 / metres): 0.5 = 2 m, "
+                                    "0.1 = 10 m", source="ours",
+                               check=lambda v: None if 0.01 < v < 10.01 else
+                               "a disparity in (0.01, 10.01), DispNet's range")
+    gyro_yaw: bool = setting(False, "warp with the (simulated, noisy) rate gyro's yaw in "
+                                    "place of PoseNet's", source="ours")
+    checkpoint_every: int = setting(250, "iterations between checkpoints", source="run",
+                                    cli="more", check=at_least(1))
+    log_every: int = setting(25, "iterations per row of the training log", source="run",
+                             cli="more", check=at_least(1))
+    eval_every: int = setting(500, "held-out check (200 frames) every N iterations, for "
+                                   "curve.csv (0: none)", source="run", cli="more",
+                              check=at_least(0))
+    test_frames: int = setting(500, "held-out frames collected for the run (other worlds: "
+                                    "seed + 1000)", source="run", cli="more",
+                               check=at_least(3))
+    loss: LossConfig = setting(default_factory=LossConfig, help="the loss (losses.py)")
 
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["encoder"], d["decoder"] = list(self.encoder), list(self.decoder)
-        d["source_offsets"] = list(self.source_offsets)
-        return d
-
-    @staticmethod
-    def from_dict(d: dict) -> "TrainConfig":
-        d = dict(d)
-        d["loss"] = LossConfig(**d.get("loss", {}))
-        d["encoder"], d["decoder"] = tuple(d["encoder"]), tuple(d["decoder"])
-        d["source_offsets"] = tuple(d.get("source_offsets", (-1, 1)))
-        return TrainConfig(**d)
+    def __post_init__(self):
+        validate(self)
 
 
-def build_nets(cfg: TrainConfig) -> tuple[DispNet, PoseNet]:
+def build_nets(cfg: TrainConfig, step: float = STEP) -> tuple[DispNet, PoseNet]:
+    """A fresh DispNet and PoseNet (seed ``cfg.seed``); PoseNet starts at the known
+    forward motion ``step`` per frame: T_{t->t-1} at tz = +step, T_{t->t+1} at -step."""
     rng = np.random.default_rng(cfg.seed)
-    disp = DispNet(cfg.encoder, cfg.decoder, cfg.n_scales, init_disp=cfg.init_disp, rng=rng,
-                   in_frames=2 if cfg.prev_frame else 1, cost_planes=cfg.cost_volume)
-    # T_{t->s} of a source o frames later moves the camera o steps forward: its
-    # translation starts at tz = -o x pose_init_forward (+0.8 m for the previous frame).
-    pose = PoseNet(n_sources=len(cfg.source_offsets), pose_scale=cfg.pose_scale,
-                   head_gain=cfg.pose_head_gain, dof=cfg.pose_dof, rng=rng,
-                   rot_scale=cfg.pose_rot_scale,
-                   init_tz=None if cfg.pose_init_forward is None else
-                   tuple(-o * cfg.pose_init_forward for o in cfg.source_offsets))
+    disp = DispNet(init_disp=cfg.init_disp, rng=rng)
+    pose = PoseNet(n_sources=len(OFFSETS), pose_scale=POSE_SCALE, head_gain=POSE_HEAD_GAIN,
+                   rng=rng, init_tz=tuple(-o * step for o in OFFSETS))
     return disp, pose
 
 
-def load_posenet(path) -> PoseNet:
-    """The PoseNet of a training checkpoint (``Trainer.save_checkpoint``), built from the
-    config stored beside it; for ``eval-depth --posenet``. A shipped model file holds
-    the DispNet alone, so it is refused with a clear message."""
-    arrays, meta = load_npz(path)
-    weights = {k[len("pose."):]: v for k, v in arrays.items() if k.startswith("pose.")}
-    if not weights or "config" not in (meta or {}):
-        raise ValueError(f"load_posenet: {str(path)!r} holds no PoseNet; expected a training "
-                         f"checkpoint (runs/depth/<run>/checkpoint.npz), not a model file")
-    _, pose = build_nets(TrainConfig.from_dict(meta["config"]))
-    pose.load_state_dict(weights)
-    return pose
-
-
 class Trainer:
-    """Holds the networks, the optimizer and the sampler; ``run`` trains to the end."""
+    """Holds the networks, the optimizer and the sampler; ``run`` trains to the end.
+
+    ``photometric_error``: (pred, target) -> (N, 1, H, W), the per-pixel error of the
+    loss (default: the configured SSIM + L1, ``losses.photometric_error``)."""
 
     def __init__(self, sequence: Sequence, cfg: TrainConfig, checkpoint=None,
-                 resume: bool = False):
+                 resume: bool = False, photometric_error=None):
         if not isinstance(sequence, Sequence):
             raise TypeError(f"Trainer: sequence must be a data.Sequence; got "
                             f"{type(sequence).__name__}")
-        self.seq, self.cfg = sequence, cfg
-        if abs(cfg.loss.step - sequence.step) > 1e-6:
-            raise ValueError(f"Trainer: the known-speed term expects {cfg.loss.step} m between "
-                             f"frames (LossConfig.step) but the sequence moves "
-                             f"{sequence.step} m (speed x dt in its metadata); set "
-                             f"LossConfig.step to the sequence's step")
-        self.offsets = tuple(cfg.source_offsets)
-        if (cfg.prev_frame or cfg.cost_volume) and -1 not in self.offsets:
-            raise ValueError(f"Trainer: prev_frame (a two-frame DispNet) and cost_volume read "
-                             f"frame t - 1, so the source offsets must include -1; got "
-                             f"{list(self.offsets)}")
-        if cfg.cost_volume and sequence.pose is None:
-            raise ValueError("Trainer: cost_volume needs the motion between frames (the "
-                             "odometry); this sequence has no poses")
-        self.targets = sequence.target_indices(self.offsets)
+        self.seq, self.cfg, self.photometric_error = sequence, cfg, photometric_error
+        self.targets = sequence.triplet_indices()
         if len(self.targets) == 0:
-            raise ValueError(f"Trainer: the sequence has no triplet (a target with its sources "
-                             f"at offsets {list(self.offsets)} in one flight); collect longer "
-                             f"flights")
+            raise ValueError("Trainer: the sequence has no triplet (three consecutive "
+                             "frames of one flight); collect longer flights")
+        self.disp, self.pose = build_nets(cfg, sequence.step)
         h, w = sequence.shape
-        if h % 2 ** (cfg.n_scales - 1) or w % 2 ** (cfg.n_scales - 1):
+        if h % 2 ** (self.disp.n_scales - 1) or w % 2 ** (self.disp.n_scales - 1):
             raise ValueError(f"Trainer: image size {h}x{w} must be divisible by "
-                             f"2^(n_scales - 1) = {2 ** (cfg.n_scales - 1)}")
-        self.disp, self.pose = build_nets(cfg)
+                             f"2^(n_scales - 1) = {2 ** (self.disp.n_scales - 1)}")
         self.params = self.disp.parameters() + self.pose.parameters()
         self.opt = Adam(self.params, lr=cfg.lr)
         self.rng = np.random.default_rng([cfg.seed, 1])
@@ -156,27 +131,17 @@ class Trainer:
             self.load_checkpoint(self.checkpoint)
 
     # -- one step ------------------------------------------------------------------
-    def sample_batch(self):
+    def sample_batch(self) -> tuple[np.ndarray, list[np.ndarray]]:
+        """B triplets (target (B, 3, H, W), [previous, next]), each mirrored left-right
+        with probability 1/2 (K is symmetric, cx = (W - 1) / 2, so a mirrored triplet
+        is a flight in a mirrored world). ``self._last``: (targets, mirrored)."""
         idx = self.rng.choice(self.targets, size=self.cfg.batch_size, replace=True)
-        target, sources = self.seq.batch(idx, self.offsets)
-        K = self.seq.K
-        if self.cfg.flip:
-            flip = self.rng.random(self.cfg.batch_size) < 0.5
-            # Mirroring a whole triplet is another valid flight (K is symmetric:
-            # cx = (W - 1) / 2), seen in a mirrored world.
-            target = np.where(flip[:, None, None, None], target[..., ::-1], target)
-            sources = [np.where(flip[:, None, None, None], s[..., ::-1], s) for s in sources]
-        self._last = (idx, flip if self.cfg.flip else np.zeros(len(idx), bool))
-        return np.ascontiguousarray(target), [np.ascontiguousarray(s) for s in sources], K
-
-    def gt_pose_vectors(self, idx, flip) -> np.ndarray:
-        """The GT T_{t->s} of targets ``idx`` as (B, S, 6) pose vectors, mirrored where the
-        triplet was flipped (M T M with M = diag(-1, 1, 1, 1)); for the GT-pose ablation
-        and the gyro's yaw."""
-        if self.seq.pose is None:
-            raise ValueError("train-depth: gt_pose needs a sequence with GT poses")
-        out = [matrix_to_pose_vec(self.motion(idx, offset, flip)) for offset in self.offsets]
-        return np.stack(out, 1).astype(np.float32)
+        target, sources = self.seq.batch(idx)
+        flip = self.rng.random(self.cfg.batch_size) < 0.5
+        target = np.where(flip[:, None, None, None], target[..., ::-1], target)
+        sources = [np.where(flip[:, None, None, None], s[..., ::-1], s) for s in sources]
+        self._last = (idx, flip)
+        return np.ascontiguousarray(target), [np.ascontiguousarray(s) for s in sources]
 
     def motion(self, idx, offset: int, flip) -> np.ndarray:
         """T_{t->t+offset} (B, 4, 4) of targets ``idx`` from the flights' poses, mirrored
@@ -188,61 +153,40 @@ class Trainer:
     def gyro_yaws(self, idx, flip) -> np.ndarray:
         """The yaw between each target and its sources as a rate gyro reports it: the true
         yaw change (ry of T_{t->s}, mirrored with the image) plus Gaussian noise of
-        ``gyro_noise`` rad. (B, S)."""
-        yaw = self.gt_pose_vectors(idx, flip)[..., 4]
-        return (yaw + self.rng.normal(0.0, self.cfg.gyro_noise, yaw.shape)).astype(np.float32)
+        ``GYRO_NOISE`` rad. (B, 2)."""
+        if self.seq.pose is None:
+            raise ValueError("Trainer: gyro_yaw needs a sequence with the flights' poses")
+        yaw = np.stack([matrix_to_pose_vec(self.motion(idx, o, flip))[..., 4]
+                        for o in OFFSETS], 1).astype(np.float32)
+        return (yaw + self.rng.normal(0.0, GYRO_NOISE, yaw.shape)).astype(np.float32)
 
     def current_lr(self) -> float:
         """The learning rate of the next step: lr, x 0.1 from ``lr_decay_at`` on."""
         decay = self.cfg.lr_decay_at is not None and self.iteration >= self.cfg.lr_decay_at
         return self.cfg.lr * (0.1 if decay else 1.0)
 
-    def disp_input(self, target: np.ndarray, sources) -> np.ndarray:
-        """What the DispNet reads: the target frames (B, 3, H, W), with ``prev_frame``
-        the frames before them too (B, 6, H, W), and with ``cost_volume`` = D the cost
-        volume against the frames before them after that (B, 3 + D, H, W). The cost
-        volume's motion is the flight's (mirrored with a mirrored triplet): the
-        odometry a quadrotor has, as in the flights (``DepthEstimator.sequence_motion``)."""
-        prev = sources[self.offsets.index(-1)] if self.offsets and -1 in self.offsets else None
-        x = np.concatenate([target, prev], axis=1) if self.cfg.prev_frame else target
-        if not self.cfg.cost_volume:
-            return x
-        idx, flip = self._last
-        mirror = lambda rgb: np.where(flip[:, None, None, None], rgb[:, :, ::-1], rgb)
-        cost = plane_sweep_cost(mirror(self.seq.rgb[idx]), mirror(self.seq.rgb[idx - 1]),
-                                self.motion(idx, -1, flip), self.seq.K,
-                                sweep_depths(self.cfg.cost_volume))
-        return np.concatenate([x, cost.transpose(0, 3, 1, 2)], axis=1)
-
     def step(self) -> dict:
-        target, sources, K = self.sample_batch()
-        disps = self.disp(self.disp_input(target, sources))
-        use_gyro = self.cfg.loss.gyro_weight > 0 or (self.cfg.gyro_yaw and not self.cfg.gt_pose)
-        gyro = self.gyro_yaws(*self._last) if use_gyro else None
-        if self.cfg.gt_pose:
-            poses = ag.Tensor(self.gt_pose_vectors(*self._last))
-        else:
-            poses = self.pose(target, sources)
-        if self.cfg.gyro_yaw and not self.cfg.gt_pose:
-            # Visual-inertial: the rotation about the vertical axis comes from the gyro,
-            # PoseNet supplies the translation and the (small) pitch and roll.
+        target, sources = self.sample_batch()
+        disps = self.disp(target)
+        poses = self.pose(target, sources)
+        if self.cfg.gyro_yaw:    # ry (index 4) from the gyro, the rest from PoseNet
             keep = np.ones(6, np.float32)
             keep[4] = 0.0
             yaw = np.zeros(poses.shape, np.float32)
-            yaw[..., 4] = gyro
+            yaw[..., 4] = self.gyro_yaws(*self._last)
             poses = poses * keep + yaw
         for name, t in [("disparity", d) for d in disps] + [("pose", poses)]:
             if not np.isfinite(t.data).all():
                 raise FloatingPointError(
                     f"train-depth: the predicted {name} holds NaN/inf at iteration "
-                    f"{self.iteration + 1}, so the loss would be NaN; try a smaller --lr")
-        loss, info = view_synthesis_loss(target, sources, disps, poses, K, self.cfg.loss, gyro,
-                                         source_steps=np.abs(self.offsets))
+                    f"{self.iteration + 1}, so the loss would be NaN; try a smaller lr")
+        loss, info = view_synthesis_loss(target, sources, disps, poses, self.seq.K,
+                                         self.cfg.loss, self.photometric_error, self.seq.step)
         value = float(loss.data)
         if not math.isfinite(value):
             raise FloatingPointError(
                 f"train-depth: the loss became {value} at iteration {self.iteration + 1} "
-                f"(photo {info['photo']}, smooth {info['smooth']}); try a smaller --lr")
+                f"(photo {info['photo']}, smooth {info['smooth']}); try a smaller lr")
         self.opt.zero_grad()
         loss.backward()
         self.opt.lr = self.current_lr()
@@ -252,6 +196,7 @@ class Trainer:
         return info
 
     def run(self, progress: bool = True, callback=None) -> list[dict]:
+        """Train to ``cfg.iterations``; ``callback(trainer, row)`` after each log row."""
         cfg = self.cfg
         bar = None
         if progress:
@@ -285,10 +230,8 @@ class Trainer:
         arrays = {f"disp.{k}": v for k, v in self.disp.state_dict().items()}
         arrays.update({f"pose.{k}": v for k, v in self.pose.state_dict().items()})
         arrays.update({f"opt.{k}": v for k, v in self.opt.state_dict().items()})
-        meta = {"iteration": self.iteration, "config": self.cfg.to_dict(),
-                "rng": _jsonable(self.rng.bit_generator.state), "history": self.history,
-                "horizon_row": float(self.seq.K[1, 2]),      # the camera of the frames
-                "K": self.seq.K.tolist()}
+        meta = {"iteration": self.iteration, "config": as_dict(self.cfg),
+                "rng": _jsonable(self.rng.bit_generator.state), "history": self.history}
         return save_npz(path, arrays, meta)
 
     def init_from(self, path) -> None:
@@ -302,36 +245,22 @@ class Trainer:
         pick = lambda prefix: {k[len(prefix):]: v for k, v in arrays.items()
                                if k.startswith(prefix)}
         if any(k.startswith("disp.") for k in arrays):
-            self.disp.load_state_dict(self._widened(pick("disp.")))
+            self.disp.load_state_dict(pick("disp."))
             self.pose.load_state_dict(pick("pose."))
         else:  # a DepthEstimator file: the DispNet's weights under their own names
-            self.disp.load_state_dict(self._widened({k: v for k, v in arrays.items()
-                                                     if "." in k}))
+            self.disp.load_state_dict({k: v for k, v in arrays.items() if "." in k})
 
-    def _widened(self, weights: dict) -> dict:
-        """A one-frame DispNet's weights for this run's two-frame or cost-volume DispNet:
-        the first conv's kernels of the new channels (the previous frame's, the cost
-        planes) start at zero, so the network starts out computing exactly what the
-        one-frame network did, and learns from there what they add. Other weights:
-        unchanged."""
-        first = weights.get("enc_a.0.weight")
-        extra = self.disp.in_channels - 3
-        if extra and first is not None and first.shape[1] == 3:
-            weights = dict(weights)
-            zeros = np.zeros(first.shape[:1] + (extra,) + first.shape[2:], first.dtype)
-            weights["enc_a.0.weight"] = np.concatenate([first, zeros], axis=1)
-        return weights
+    # The settings a resumed run must share with its checkpoint (the others, such as
+    # ``iterations`` or ``lr_decay_at``, may change to train on or to step the lr).
+    RESUME_KEYS = ("seed", "batch_size", "lr", "init_disp", "gyro_yaw", "loss")
 
     def load_checkpoint(self, path) -> None:
         arrays, meta = load_npz(path)
-        saved = TrainConfig.from_dict(meta["config"])
-        for key in ("seed", "batch_size", "encoder", "decoder", "n_scales", "lr", "loss",
-                    "init_disp", "pose_scale", "pose_head_gain", "pose_dof", "pose_init_forward",
-                    "pose_rot_scale", "gt_pose", "gyro_yaw", "gyro_noise", "prev_frame",
-                    "cost_volume"):
-            if getattr(saved, key) != getattr(self.cfg, key):
+        saved, now = meta["config"], as_dict(self.cfg)
+        for key in self.RESUME_KEYS:
+            if saved.get(key) != now[key]:
                 raise ValueError(f"resume: the checkpoint {str(path)!r} was made with {key} = "
-                                 f"{getattr(saved, key)!r}, this run asks {getattr(self.cfg, key)!r}")
+                                 f"{saved.get(key)!r}, this run asks {now[key]!r}")
         pick = lambda prefix: {k[len(prefix):]: v for k, v in arrays.items()
                                if k.startswith(prefix)}
         self.disp.load_state_dict(pick("disp."))
@@ -343,33 +272,97 @@ class Trainer:
 
     # -- the metric scale from the known flight speed ----------------------------------
     def speed_scale(self, max_triplets: int = 400) -> float:
-        return speed_scale(self.pose, self.seq, max_triplets, step=self.seq.step,
-                           offsets=self.offsets)
+        return speed_scale(self.pose, self.seq, max_triplets)
 
 
-def speed_scale(posenet: PoseNet, seq: Sequence, max_triplets: int = 400,
-                step: float = SPEED * FRAME_DT, offsets=(-1, 1)) -> float:
-    """scale = step / mean (|t_pred| / |o|) over (up to ``max_triplets``) targets and all
-    their sources (o frames away: o steps flown).
-
-    ``step`` is the distance flown between frames (known from the drone's speed, not
-    from ground truth). Multiplying the network's depth (1 / disp) by this scale gives
-    metres.
-    """
-    idx = seq.target_indices(offsets)
+def speed_scale(posenet: PoseNet, seq: Sequence, max_triplets: int = 400) -> float:
+    """scale = step / mean |t_pred| over (up to ``max_triplets``) triplets and both their
+    sources, with step = speed x dt the distance flown between frames (known from the
+    drone's speed, not from ground truth). Multiplying the network's depth (1 / disp)
+    by this scale gives metres."""
+    idx = seq.triplet_indices()
     if len(idx) > max_triplets:
         idx = idx[np.linspace(0, len(idx) - 1, max_triplets).astype(int)]
-    per_step = np.abs(np.asarray(offsets, dtype=np.float64))
     norms = []
     with ag.no_grad():
         for k in range(0, len(idx), 64):
-            target, sources = seq.batch(idx[k:k + 64], offsets)
+            target, sources = seq.batch(idx[k:k + 64])
             poses = posenet(target, sources).data
-            norms.append((np.linalg.norm(poses[..., :3], axis=-1) / per_step).ravel())
+            norms.append(np.linalg.norm(poses[..., :3], axis=-1).astype(np.float64).ravel())
     mean = float(np.mean(np.concatenate(norms)))
     if not mean > 0:
         raise FloatingPointError("speed_scale: PoseNet predicts no motion at all")
-    return step / mean
+    return seq.step / mean
+
+
+# -- a whole run ------------------------------------------------------------------------
+def train_depth(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
+                test_file=None, init_from=None, resume: bool = True,
+                progress: bool = False) -> Path:
+    """Train a DispNet + PoseNet in ``run_dir`` and write its model file; returns its path.
+
+    The training frames are read from ``train_file`` (default ``run_dir/train.npz``),
+    collected there with ``data`` when it does not exist; the held-out frames likewise
+    from ``test_file`` (default ``run_dir/test.npz``), else ``cfg.test_frames`` frames
+    of ``held_out(data)``. ``init_from``: a checkpoint or model file to fine-tune
+    (ignored when a checkpoint is resumed, with ``resume``). ``run_dir`` gets
+    checkpoint.npz, curve.csv/.png (the held-out check every ``cfg.eval_every``
+    iterations), model.npz, results.json (the model file's metadata: the configs, the
+    ``train-depth`` and ``collect`` commands that reproduce it, the held-out results)
+    and pictures.png (RGB | predicted | GT of six held-out frames).
+    """
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    train = _frames(Path(train_file or run_dir / "train.npz"), data, progress)
+    test = _frames(Path(test_file or run_dir / "test.npz"), held_out(data, cfg.test_frames),
+                   progress)
+    t_data = time.time() - t0
+    trainer = Trainer(train, cfg, checkpoint=run_dir / "checkpoint.npz", resume=resume)
+    if trainer.iteration:
+        print(f"train-depth: resuming at iteration {trainer.iteration}")
+    elif init_from:
+        trainer.init_from(init_from)
+    t1 = time.time()
+    trainer.run(progress=progress, callback=LearningCurve(run_dir, test, cfg.eval_every))
+    t_train = time.time() - t1
+    estimator = DepthEstimator(trainer.disp, trainer.speed_scale())
+    results = evaluate(estimator, test, posenet=trainer.pose)
+    meta = {"command": train_depth_command(cfg, data, run_dir, train_file, test_file,
+                                           init_from),
+            "data_command": (train.meta or {}).get("command"),
+            "seed": cfg.seed, "scenario": data.scenario, "config": as_dict(cfg),
+            "data": as_dict(data), "results": results,
+            "train_frames": len(train), "test_frames": len(test),
+            "train_seconds": round(t_train, 1), "data_seconds": round(t_data, 1),
+            "machine": machine(), "history": trainer.history[-1:]}
+    model = estimator.save(run_dir / "model.npz", meta)
+    (run_dir / "results.json").write_text(json.dumps(meta, indent=2))
+    rows = np.linspace(0, len(test) - 1, 6).astype(int)
+    comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]), test.depth[rows],
+                       run_dir / "pictures.png")
+    return model
+
+
+def train_depth_command(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
+                        test_file=None, init_from=None) -> str:
+    """The ``train-depth`` command line of a ``train_depth`` run (its frames' seed is the
+    run's; frames made otherwise come from ``train_file``, whose ``collect`` command the
+    model file records beside it)."""
+    shown = replace(CollectConfig(), scenario=data.scenario, frames=data.frames,
+                    late_turns=data.late_turns)
+    parts = ["python -m minid3rqn train-depth", *command_line(CollectConfig, shown),
+             *command_line(TrainConfig, cfg), "--dir", str(run_dir)]
+    for flag, value in (("--data", train_file), ("--test-data", test_file),
+                        ("--init-from", init_from)):
+        if value is not None:
+            parts += [flag, str(value)]
+    return " ".join(parts)
+
+
+def _frames(path: Path, data: CollectConfig, progress: bool) -> Sequence:
+    """The sequence file at ``path``, collected there with ``data`` if it is missing."""
+    return load_sequence(path) if path.is_file() else collect_sequence(data, path, progress)
 
 
 def _jsonable(obj):
@@ -380,4 +373,5 @@ def _jsonable(obj):
     return obj
 
 
-__all__ = ["TrainConfig", "Trainer", "build_nets", "load_posenet", "speed_scale"]
+__all__ = ["TrainConfig", "Trainer", "build_nets", "speed_scale", "train_depth",
+           "train_depth_command"]

@@ -12,12 +12,6 @@ al. 2017) and monodepth2's decoder (Godard et al. 2019), shrunk to 32x104 images
 
 Scale i has resolution (H / 2^i, W / 2^i); ``forward`` returns the list finest first.
 Input: float RGB in [0, 1], (N, 3, H, W); it is normalised inside ((x - 0.45) / 0.225).
-With ``in_frames=2`` (ours, not the paper's) the input is the frame and the one filmed
-before it, stacked on channels (N, 6, H, W): the network can then also read the
-motion between them (what moved how far), not only the single image.
-With ``cost_planes=D`` (ours) it also reads a plane-sweep cost volume of D channels
-after the frame (``depth/cost_volume.py``): how well the previous frame, moved by the
-known motion, agrees with this one if the pixel were at each of D depths.
 ELU rather than ReLU everywhere: its gradient never dies, which matters with few
 iterations (monodepth2 uses ELU in its decoder for the same reason).
 
@@ -63,25 +57,12 @@ class DispNet(Module):
         init_disp: the disparity every head starts near (its bias is set to
             logit((init_disp - b) / a)); None keeps the default init (disp ~ a/2 + b).
         rng: seed or np.random.Generator for the initial weights.
-        in_frames: RGB frames read, stacked on channels: 1 (the paper's), or 2 (the
-            frame, then the one before it; ours).
-        cost_planes: channels of a plane-sweep cost volume read after the frames (0:
-            none, the paper's; D: ``depth.cost_volume.plane_sweep_cost`` with D depths).
     """
 
     def __init__(self, encoder=(16, 32, 64, 96), decoder=(16, 16, 32, 64), n_scales: int = 4,
                  disp_scale: float = 10.0, min_disp: float = 0.01, double_conv: bool = True,
-                 init_disp: float | None = 0.5, rng=0, dtype=np.float32, in_frames: int = 1,
-                 cost_planes: int = 0):
+                 init_disp: float | None = 0.5, rng=0, dtype=np.float32):
         rng = as_rng(rng)
-        if in_frames not in (1, 2):
-            raise ValueError(f"DispNet: in_frames must be 1 or 2; got {in_frames!r}")
-        if isinstance(cost_planes, bool) or not isinstance(cost_planes, (int, np.integer)) \
-                or cost_planes < 0:
-            raise ValueError(f"DispNet: cost_planes must be an int >= 0 (0: no cost volume); "
-                             f"got {cost_planes!r}")
-        self.in_frames, self.cost_planes = int(in_frames), int(cost_planes)
-        self.in_channels = 3 * self.in_frames + self.cost_planes
         if len(encoder) != len(decoder):
             raise ValueError(f"DispNet: encoder and decoder need one entry per level; got "
                              f"{len(encoder)} and {len(decoder)}")
@@ -89,7 +70,7 @@ class DispNet(Module):
             raise ValueError(f"DispNet: n_scales must be in [1, {len(encoder)}]; got {n_scales}")
         self.encoder_channels, self.decoder_channels = tuple(encoder), tuple(decoder)
         self.n_scales, self.disp_scale, self.min_disp = n_scales, disp_scale, min_disp
-        self.enc_a, self.enc_b, c_in = [], [], self.in_channels
+        self.enc_a, self.enc_b, c_in = [], [], 3
         for c in encoder:
             self.enc_a.append(Conv2d(c_in, c, 3, stride=2, padding=1, rng=rng, dtype=dtype))
             if double_conv:
@@ -116,23 +97,16 @@ class DispNet(Module):
     def config(self) -> dict:
         return {"encoder": list(self.encoder_channels), "decoder": list(self.decoder_channels),
                 "n_scales": self.n_scales, "disp_scale": self.disp_scale,
-                "min_disp": self.min_disp, "double_conv": bool(self.enc_b),
-                "in_frames": self.in_frames, "cost_planes": self.cost_planes}
+                "min_disp": self.min_disp, "double_conv": bool(self.enc_b)}
 
     def forward(self, rgb, scales: int | None = None) -> list[Tensor]:
         """rgb (N, 3, H, W) float in [0, 1] -> [disp_0 (N,1,H,W), disp_1 (N,1,H/2,W/2), ...].
 
-        With ``in_frames=2``: rgb (N, 6, H, W), the frame then the previous one; with
-        ``cost_planes=D``, the D cost channels follow (in [0, 1], normalised like the
-        colours: one affine map of the input, which the first conv absorbs).
         ``scales``: compute only the finest ``scales`` heads (1 for inference).
         """
         x = rgb if isinstance(rgb, Tensor) else Tensor(np.asarray(rgb))
-        c = self.in_channels
-        if x.ndim != 4 or x.shape[1] != c:
-            cost = f" + {self.cost_planes} cost planes" if self.cost_planes else ""
-            raise ValueError(f"DispNet: input must be (N, {c}, H, W): {self.in_frames} RGB "
-                             f"frame(s){cost} on channels; got shape {x.shape}")
+        if x.ndim != 4 or x.shape[1] != 3:
+            raise ValueError(f"DispNet: input must be (N, 3, H, W) RGB; got shape {x.shape}")
         h, w = x.shape[2:]
         x = (x - RGB_MEAN) * (1.0 / RGB_STD)
         feats = []

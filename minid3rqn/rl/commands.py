@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..depth.commands import add_argument_horizon_row
 from ..io import machine
 
 MODELS = Path(__file__).resolve().parent.parent / "models"
@@ -40,6 +39,12 @@ def load_depth_estimator(path, flip: bool = False):
 
 HORIZON_DEFAULT = "the depth model's, else the Q-nets', else the middle row"
 
+
+def add_argument_horizon_row(p: argparse.ArgumentParser, default: str) -> None:
+    p.add_argument("--horizon-row", type=float, default=None,
+                   help=f"image row of the horizon (default: {default})")
+
+
 def _q_nets(policies) -> list:
     """The Q-net policies in ``policies`` (an ensemble's members; baselines left out)."""
     return [m for p in policies for m in getattr(p, "members", [p]) if hasattr(m, "qnet")]
@@ -55,20 +60,22 @@ def horizon_for(command: str, given, est, policies=()) -> float | None:
     model's (a DispNet reads frames like the ones it was trained on), else the Q-nets'.
     Every Q-net and the depth model must agree with it: a net trained with one camera
     flown with another sees the floor where it never saw it, and says nothing."""
-    from ..depth.commands import camera_or_exit
     from ..world import Camera
-    default = Camera().cy
+    default = Camera().cy            # the camera every DispNet is trained with
     nets = _q_nets(policies)
     row = given
     if row is None and est is not None:
-        row = est.horizon_row
+        row = default
     if row is None:
         rows = {model_horizon(getattr(m, "meta", None)) for m in nets}
         row = rows.pop() if len(rows) == 1 else None
-    cy = camera_or_exit(command, row).cy
-    if est is not None and abs(est.horizon_row - cy) > 1e-6:
+    try:
+        cy = Camera(horizon_row=row).cy
+    except ValueError as e:
+        raise SystemExit(f"{command} --horizon-row: {e}")
+    if est is not None and abs(default - cy) > 1e-6:
         raise SystemExit(f"{command}: the depth model was trained with the horizon at row "
-                         f"{est.horizon_row:g}, but --horizon-row is {cy:g}")
+                         f"{default:g}, but --horizon-row is {cy:g}")
     for m in nets:
         trained = model_horizon(getattr(m, "meta", None))
         trained = default if trained is None else trained

@@ -63,7 +63,7 @@ QUICK = dict(steps=3_000, updates_per_step=4.0, eps_decay=2_500, learning_starts
 # simulated gyro's yaw, heads starting far (10 m) and the soft auto-mask; each transfer
 # scenario fine-tunes the basic DispNet on its own frames. Both with an lr step (x 0.1):
 # (iterations, step at).
-DEPTH_RECIPE = ["--gyro-yaw", "--init-disp", "0.1", "--unmasked-weight", "0.1"]
+DEPTH_RECIPE = {"gyro_yaw": True, "init_disp": 0.1, "unmasked_weight": 0.1}
 DEPTH_SCHEDULE = {"basic": (6000, 4500), "transfer": (3000, 2000), "long": (10000, 7000)}
 # The shipped basic DispNet (v5) is v1 fine-tuned (the transfer schedule) with the
 # full-resolution loss on frames of a late-turning pilot, then (the long schedule) on
@@ -72,37 +72,36 @@ DEPTH_SCHEDULE = {"basic": (6000, 4500), "transfer": (3000, 2000), "long": (1000
 # were collected with seed 2; here they share the seed, so the first third of them are
 # the previous stage's frames). Each transfer DispNet fine-tunes that last basic one the
 # same way (the transfer schedule) on its own world's late-turning frames.
-BASIC_FINETUNE = ("--full-res", "--late-turns", "0.5")
+BASIC_FINETUNE = {"full_res": True, "late_turns": 0.5}
 
 
 def _train_depth(scenario: str, out: Path, seed: int, budget: dict,
                  init_from: Path | None = None, name: str | None = None,
-                 extra: tuple = (), schedule: str | None = None, frames_factor: int = 1) -> Path:
+                 extra: dict | None = None, schedule: str | None = None,
+                 frames_factor: int = 1) -> Path:
     """Train (``init_from`` None) or fine-tune a DispNet in ``out/depth/<name>``, with
-    ``extra`` train-depth arguments; ``schedule`` a key of DEPTH_SCHEDULE (default:
+    ``extra`` settings over DEPTH_RECIPE; ``schedule`` a key of DEPTH_SCHEDULE (default:
     basic from scratch, transfer for a fine-tune); ``frames_factor`` x the budget's
     frames."""
-    from ..depth import commands as dc
-    p = argparse.ArgumentParser()
-    dc.add_arguments_train_depth(p)
+    from ..depth.data import CollectConfig
+    from ..depth.losses import LossConfig
+    from ..depth.train import TrainConfig, train_depth
     schedule = schedule or ("basic" if init_from is None else "transfer")
     iterations, decay_at = DEPTH_SCHEDULE[schedule]
     if budget["depth_iterations"]:                    # --quick: the same shape, shorter
         iterations = budget["depth_iterations"]
         decay_at = iterations * 3 // 4
-    run_dir = out / "depth" / (name or scenario)
-    frames = budget["depth_frames"] * frames_factor
-    argv = ["--scenario", scenario, "--seed", str(seed), "--frames", str(frames),
-            "--iterations", str(iterations), "--lr-decay-at", str(decay_at),
-            "--dir", str(run_dir), "--resume", "--quiet", *DEPTH_RECIPE]
-    if init_from is not None:
-        argv += ["--init-from", str(init_from)]
+    frames, test_frames = budget["depth_frames"] * frames_factor, 500
     if budget.get("smoke"):                           # tests: seconds
-        argv.append("--smoke")
-    argv += list(extra)
-    args = p.parse_args(argv)
-    dc.run_train_depth(args)
-    return run_dir / "model.npz"
+        frames, test_frames, iterations = min(frames, 60), 30, min(iterations, 3)
+    s = {**DEPTH_RECIPE, **(extra or {})}
+    cfg = TrainConfig(iterations=iterations, lr_decay_at=decay_at, seed=seed,
+                      init_disp=s["init_disp"], gyro_yaw=s["gyro_yaw"], test_frames=test_frames,
+                      loss=LossConfig(unmasked_weight=s["unmasked_weight"],
+                                      full_res=s.get("full_res", False)))
+    data = CollectConfig(scenario=scenario, frames=frames, seed=seed,
+                         late_turns=s.get("late_turns", 0.0))
+    return train_depth(cfg, data, out / "depth" / (name or scenario), init_from=init_from)
 
 
 def _train_agent(spec: str, out: Path, seed: int, budget: dict, train_depth: str, depth_model,
