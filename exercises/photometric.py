@@ -18,7 +18,9 @@ compare abs rel against ground truth.
 
 ``ssim_dissimilarity(pred, target)`` gives (1 - SSIM) / 2 per pixel and channel (or use
 your own, built from autograd ops). Use only autograd ops (ag.mean, ag.abs, +, *) so
-that gradients flow back into the depth network.
+that gradients flow back into the depth network. The exercise hands your function to
+the depth trainer, ``Trainer(frames, cfg, photometric_error=photometric_error)``, which
+uses it wherever the loss compares two images (minid3rqn/depth/losses.py).
 """
 from minid3rqn import autograd as ag
 from minid3rqn.depth.losses import ssim_dissimilarity  # noqa: F401  (for your SSIM term)
