@@ -37,8 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from minid3rqn.depth.evaluate import log_error_parts
-from minid3rqn.rl.commands import (VARIANT_NAMES, encoding_for, horizon_for,
-                                   load_depth_estimator)
+from minid3rqn.rl.models import VARIANT_NAMES, load_depth_estimator
 from minid3rqn.rl.evaluate import evaluate_policy
 from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
 from minid3rqn.rl.policies import QNetPolicy
@@ -157,11 +156,7 @@ def main():
 
     est = load_depth_estimator(args.depth_model)
     pol = QNetPolicy.load(args.qnet)
-    # the camera the DispNet was trained with; the Q-net must have been trained with it too
-    # and the frames encoded as the Q-net was trained to read them
-    cfg = FlightsConfig(horizon_row=horizon_for("07_which_depth_errors_matter", None, est,
-                                                [pol]),
-                        encoding=encoding_for("07_which_depth_errors_matter", None, [pol]))
+    cfg = FlightsConfig()
     chosen = views(args.near)
     if args.only:
         chosen = {k: v for k, v in chosen.items()

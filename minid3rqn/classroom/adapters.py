@@ -1,31 +1,13 @@
-"""Thin adapters that plug a student's change into the library's training code.
+"""The depth exercise's photometric error, swapped into the view-synthesis loss for the
+length of a ``with`` block (until the depth trainer takes it as a parameter):
 
-The exercises change one thing at a time: the reward, the action table, the camera, the
-TD target, the photometric error, the depth seen in training. The library takes some of
-these as arguments (``DroneEnv(actions=..., reward_fn=...)``, ``Flights(camera=...,
-actions=...)``) but its training and evaluation loops build their flights themselves.
-The adapters below swap, for the duration of a ``with`` block only, the one name that
-the loop looks up:
-
-    with classroom_flights(actions=table, camera=cam, reward_fn=reward):
-        Trainer(cfg, out).run()               # rl.train builds ClassroomFlights
-        evaluate_policy(policy, ...)          # and so does rl.evaluate
-    with classroom_flights(depth_fn=corrupt): # around training only: the test flights
-        Trainer(cfg, out).run()               # must see the depth as it is
-    with td_target(my_target):                # rl.agent's double-Q target -> yours
-        ...
     with photometric_error(my_error):         # depth.losses' photometric error -> yours
         ...
-
-Everything is restored when the block ends, also on an error.
 """
 from __future__ import annotations
 
 import contextlib
 import importlib
-import inspect
-
-import numpy as np
 
 
 @contextlib.contextmanager
@@ -43,67 +25,6 @@ def patched(module_name: str, attr: str, value):
         setattr(module, attr, old)
 
 
-def accepts_yaw_rate(reward_fn) -> bool:
-    """Whether ``reward_fn`` takes a third argument (the yaw rate of the action flown)."""
-    try:
-        params = list(inspect.signature(reward_fn).parameters.values())
-    except (TypeError, ValueError):
-        return False
-    if any(p.kind == p.VAR_POSITIONAL for p in params):
-        return True
-    positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
-    return len(positional) >= 3
-
-
-def call_reward(reward_fn, d_nearest, collided, yaw_rate):
-    """reward_fn(d, collided, yaw_rate) if it takes the yaw rate, else reward_fn(d, collided)."""
-    if accepts_yaw_rate(reward_fn):
-        return reward_fn(d_nearest, collided, yaw_rate)
-    return reward_fn(d_nearest, collided)
-
-
-@contextlib.contextmanager
-def classroom_flights(actions=None, camera=None, reward_fn=None, depth_fn=None):
-    """Inside the block, training (rl.train) and evaluation (rl.evaluate) fly
-    ``ClassroomFlights`` with these actions, camera and reward (None: the library's).
-
-    ``depth_fn(depth, rng) -> depth`` (exercise 8) corrupts every depth map the flights
-    observe, before it is encoded for the Q-net. It is meant for training only: put
-    the training alone inside a block with ``depth_fn``, and evaluate outside it (or in
-    a block without it), as ``runner.run_agent_exercise`` does."""
-
-    from .flights import ClassroomFlights
-
-    def make(*args, **kwargs):
-        if actions is not None:
-            kwargs.setdefault("actions", np.asarray(actions, dtype=np.float64))
-        if camera is not None:
-            kwargs.setdefault("camera", camera)
-        return ClassroomFlights(*args, reward_fn=reward_fn, depth_fn=depth_fn, **kwargs)
-
-    with contextlib.ExitStack() as stack:
-        for module in ("minid3rqn.rl.train", "minid3rqn.rl.evaluate"):
-            stack.enter_context(patched(module, "Flights", make))
-        yield make
-
-
-@contextlib.contextmanager
-def td_target(fn):
-    """Inside the block the agent's update uses ``fn(q_online_next, q_target_next,
-    rewards, terminals, gamma) -> y`` instead of the double-Q target (None: unchanged)."""
-    if fn is None:
-        yield
-        return
-
-    def target(q_online_next, q_target_next, rewards, terminals, gamma):
-        y = fn(np.asarray(q_online_next), np.asarray(q_target_next), np.asarray(rewards),
-               np.asarray(terminals), gamma)
-        return np.asarray(y, dtype=np.float32)
-
-    with patched("minid3rqn.rl.agent", "double_q_targets", target):
-        yield
-
-
 @contextlib.contextmanager
 def photometric_error(fn):
     """Inside the block the view-synthesis loss uses ``fn(pred, target) -> (N, 1, H, W)``
@@ -119,5 +40,4 @@ def photometric_error(fn):
         yield
 
 
-__all__ = ["classroom_flights", "td_target", "photometric_error",
-           "accepts_yaw_rate", "call_reward", "patched"]
+__all__ = ["photometric_error", "patched"]

@@ -75,9 +75,20 @@ def _as_float(report, value, what, path):
     return x
 
 
+def accepts_yaw_rate(reward_fn) -> bool:
+    """Whether ``reward_fn`` takes a third argument (the yaw rate of the action flown)."""
+    try:
+        params = list(inspect.signature(reward_fn).parameters.values())
+    except (TypeError, ValueError):
+        return False
+    if any(p.kind == p.VAR_POSITIONAL for p in params):
+        return True
+    positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    return len(positional) >= 3
+
+
 def check_reward(path) -> Report:
     from ..world import paper_reward
-    from .adapters import accepts_yaw_rate
 
     def body(m, r):
         fn = get_callable(m, "reward", r, path)
@@ -190,8 +201,8 @@ def check_reward(path) -> Report:
         _, rew, *_ = _call(r, path, "DroneEnv(reward_fn=reward).step(0)", env.step, 0)
         if not math.isfinite(rew):
             r.fail(f"in the environment your reward gave {rew}", stop=True)
-        from .flights import ClassroomFlights
-        fl = ClassroomFlights("basic", 4, seed=0, reward_fn=fn, config=_small_pool())
+        from ..rl.flights import Flights
+        fl = Flights("basic", 4, seed=0, reward_fn=fn, config=_small_pool())
         fl.reset()
         res = _call(r, path, "the training flights' step", fl.step, np.array([0, 1, 3, 4]))
         if not np.all(np.isfinite(res.rewards)):
@@ -797,9 +808,8 @@ def check_depth_errors(path) -> Report:
                        "network can learn to undo, rather than a random error")
 
         # it reaches the training flights
-        from ..rl.flights import depth_only
-        from .flights import ClassroomFlights
-        fl = ClassroomFlights("basic", 4, seed=0, depth_fn=fn, config=_small_pool())
+        from ..rl.flights import Flights, depth_only
+        fl = Flights("basic", 4, seed=0, depth_fn=fn, config=_small_pool())
         frames = _call(r, path, "the training flights' reset, with your corrupt", fl.reset)
         _call(r, path, "the training flights' step, with your corrupt", fl.step,
               np.zeros(4, np.int64))

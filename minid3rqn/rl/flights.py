@@ -118,7 +118,7 @@ class Flights:
 
     def __init__(self, scenario: str, n: int, seed: int = 0, config: FlightsConfig | None = None,
                  depth: str = "gt", depth_estimator=None, autoreset: bool = True,
-                 camera: Camera | None = None, actions=None):
+                 camera: Camera | None = None, actions=None, reward_fn=None, depth_fn=None):
         if depth not in ("gt", "pred"):
             raise ValueError(f"Flights: depth must be 'gt' or 'pred'; got {depth!r}")
         if depth == "pred" and depth_estimator is None:
@@ -177,6 +177,8 @@ class Flights:
         self.frame_shape = (self.camera.height, self.camera.width)
         self.n_sub = n_substeps(self.actions, ACTION_INTERVAL)
         self.rng = np.random.default_rng(seed)
+        self.reward_fn, self.depth_fn = reward_fn, depth_fn
+        self.depth_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         if self.cfg.test_worlds and self.cfg.validation_worlds:
             raise ValueError("Flights: config.test_worlds and config.validation_worlds are "
                              "both set; the two seed ranges are disjoint, pick one")
@@ -222,6 +224,8 @@ class Flights:
             depth = np.asarray(depth, dtype=np.float32) * self.cfg.depth_scale
         if self.cfg.depth_noise > 0:
             depth = (depth * np.exp(self.depth_error(len(idx)))).astype(np.float32)
+        if self.depth_fn is not None:
+            depth = _checked_depth(self.depth_fn(depth, self.depth_rng), depth)
         return depth, self.encode(depth), rgb
 
     def _previous_view(self, idx, sub: SceneBatch) -> tuple[np.ndarray, np.ndarray]:
@@ -332,7 +336,10 @@ class Flights:
             self.poses[idx] = path[:, -1]
             self.t[idx] += 1
             d_near[idx] = clear[:, -1]
-            rewards[idx] = paper_reward(clear[:, -1], collided)
+            if self.reward_fn is None:
+                rewards[idx] = paper_reward(clear[:, -1], collided)
+            else:
+                rewards[idx] = _call_reward(self.reward_fn, clear[:, -1], collided, a[:, 1])
             term[idx] = collided
             trunc[idx] = ~collided & (self.t[idx] >= self.cfg.max_steps)
             depth, frames, rgb = self.observe(idx)
@@ -377,7 +384,8 @@ class Flights:
                 "frames": self.frames, "last_depth": self.last_depth}
 
     def meta_state(self) -> dict:
-        return {"rng": json.dumps(self.rng.bit_generator.state)}
+        return {"rng": json.dumps(self.rng.bit_generator.state),
+                "depth_rng": json.dumps(self.depth_rng.bit_generator.state)}
 
     def load_state_dict(self, arrays: dict, meta: dict) -> None:
         self.world_of[...] = arrays["world_of"]
@@ -387,6 +395,42 @@ class Flights:
         self.last_depth = arrays["last_depth"].copy()
         self.batch = SceneBatch([self.worlds[k] for k in self.world_of])
         self.rng.bit_generator.state = json.loads(meta["rng"])
+        self.depth_rng.bit_generator.state = json.loads(meta["depth_rng"])
+
+
+def _call_reward(reward_fn, d_nearest, collided, yaw_rate):
+    """reward_fn(d, collided, yaw_rate), or reward_fn(d, collided) if it takes two."""
+    import inspect
+    try:
+        params = inspect.signature(reward_fn).parameters.values()
+        three = any(p.kind == p.VAR_POSITIONAL for p in params) or len(
+            [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]) >= 3
+    except (TypeError, ValueError):
+        three = False
+    r = reward_fn(d_nearest, collided, yaw_rate) if three else reward_fn(d_nearest, collided)
+    return np.broadcast_to(np.asarray(r, dtype=np.float64), np.shape(d_nearest))
+
+
+def _checked_depth(out, depth: np.ndarray) -> np.ndarray:
+    """What a depth_fn returned, as float32, if it is positive finite depths of the
+    input's shape (ValueError otherwise)."""
+    arr = None if out is None else np.asarray(out)
+    problem = None
+    if arr is None:
+        problem = "None"
+    elif arr.shape != depth.shape:
+        problem = f"an array of shape {arr.shape}"
+    elif arr.dtype.kind != "f":
+        problem = f"an array of dtype {arr.dtype}"
+    elif not np.all(np.isfinite(arr)):
+        problem = f"{int(np.sum(~np.isfinite(arr)))} non-finite values (nan or inf)"
+    elif np.any(arr <= 0):
+        problem = f"{int(np.sum(arr <= 0))} depths <= 0 (lowest {float(arr.min()):g} m)"
+    if problem is not None:
+        raise ValueError(f"Flights: depth_fn(depth, rng) must return positive finite float "
+                         f"depths (metres) of the input's shape {depth.shape}; got {problem} "
+                         f"(python -m minid3rqn check depth-errors finds why)")
+    return arr.astype(np.float32)
 
 
 __all__ = ["Flights", "FlightsConfig", "StepResult", "depth_only"]
