@@ -173,7 +173,8 @@ def _qnet_model(ensemble: int = 1, qnet: str | None = None, mirror: bool = False
     ``ensemble`` > 1: that many copies of it flying as an ``EnsemblePolicy`` (the speed
     does not depend on the weights); ``mirror``: each with its mirrored twin, as
     ``evaluate --mirror`` flies them."""
-    from minid3rqn.rl.commands import SHIPPED_QNET
+    from minid3rqn.rl.mirror import MirroredPolicy
+    from minid3rqn.rl.models import SHIPPED_QNET
     from minid3rqn.rl.policies import EnsemblePolicy, QNetPolicy
     from minid3rqn.nets.qnet import QNet, QNetConfig
 
@@ -187,7 +188,7 @@ def _qnet_model(ensemble: int = 1, qnet: str | None = None, mirror: bool = False
     name = members[0][1] if ensemble == 1 else f"ensemble of {ensemble} x {members[0][1]}"
     policies = [m for m, _ in members]
     if mirror:
-        policies += [m.mirrored() for m in policies]
+        policies += [MirroredPolicy(m) for m in policies]
         name += ", with the mirror image"
     return (policies[0] if len(policies) == 1 else EnsemblePolicy(policies)), name
 
@@ -226,7 +227,7 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
     ``qnet``: another Q-net file (``--qnet``; e.g. a wider LSTM) instead of the shipped one.
     ``mirror``: each Q-net with its mirror image (``--mirror``)."""
     import numpy as np
-    from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
+    from minid3rqn.rl.models import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.flights import Flights
     policy, model = _qnet_model(ensemble, qnet, mirror)
     depth_path = Path(depth_model) if depth_model else shipped_depth_model("basic")
@@ -276,7 +277,7 @@ def bench_framework_rendered_twice(repeat: int, threads: int, n_flights: int = 1
     then ``Flights.step`` (which renders and predicts the next pose again): two
     renders and two DispNet passes per step. Kept to compare with old figures."""
     import numpy as np
-    from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
+    from minid3rqn.rl.models import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.flights import Flights
     from minid3rqn.world import render_batch
     policy, model = _qnet_model()
@@ -306,7 +307,7 @@ def bench_framework_rendered_twice(repeat: int, threads: int, n_flights: int = 1
 
 def bench_eval(flights: int, threads: int, workers: int = 1, ensemble: int = 1,
                qnet: str | None = None, mirror: bool = False) -> list:
-    from minid3rqn.rl.commands import shipped_depth_model, load_depth_estimator
+    from minid3rqn.rl.models import shipped_depth_model, load_depth_estimator
     from minid3rqn.rl.evaluate import evaluate_policy
     policy, model = _qnet_model(ensemble, qnet, mirror)
     outs = []

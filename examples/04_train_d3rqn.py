@@ -6,14 +6,15 @@ The Table-5 run (budget B) took 29 min on a 2-core machine shared with four othe
 jobs:
 
     python -m minid3rqn train-agent --variant d3rqn --seed 0 --steps 60000 \
-        --learning-starts 5000 --eps-decay 50000 --replay 100000 --updates-per-step 4.0
+        --learning-starts 5000 --eps-decay-steps 50000 --replay-capacity 100000
 
 The shipped model was trained longer (240k transitions at 2 updates per step, 30 min
 on one core, 0.949 on GT depth), then fine-tuned for 20k transitions on predicted
 depth (docs/results.md):
 
     python -m minid3rqn train-agent --variant d3rqn --seed 0 --steps 240000 \
-        --learning-starts 5000 --eps-decay 100000 --replay 100000 --updates-per-step 2.0
+        --learning-starts 5000 --eps-decay-steps 100000 --replay-capacity 100000 \
+        --set updates_per_step=2.0
 
     python examples/04_train_d3rqn.py [--smoke] [--out DIR]
 
@@ -24,8 +25,7 @@ depth (docs/results.md):
 import argparse
 from pathlib import Path
 
-from minid3rqn.rl.flights import FlightsConfig
-from minid3rqn.rl.train import TrainConfig, Trainer
+from minid3rqn.rl.train import SMOKE, TrainConfig, train
 
 
 def main():
@@ -34,17 +34,14 @@ def main():
     p.add_argument("--out", default="runs/example_d3rqn")
     args = p.parse_args()
     if args.smoke:
-        cfg = TrainConfig(total_steps=128, learning_starts=64, n_envs=8, hidden=16,
-                          log_every=64, checkpoint_every=10_000, replay_capacity=2_000,
-                          eps_decay_steps=200, flights=FlightsConfig(n_worlds=2))
+        cfg = TrainConfig(**SMOKE)
     else:
-        cfg = TrainConfig(total_steps=60_000, learning_starts=5_000, eps_decay_steps=50_000,
+        cfg = TrainConfig(steps=60_000, learning_starts=5_000, eps_decay_steps=50_000,
                           replay_capacity=100_000, updates_per_step=4.0)
-    print(f"training {cfg.variant}: {cfg.total_steps} transitions, {cfg.n_envs} flights at "
-          f"once, window {cfg.seq_len}, batch {cfg.batch_size}, gamma {cfg.agent.gamma}")
-    trainer = Trainer(cfg, Path(args.out), progress=not args.smoke)
-    trainer.run()
-    for row in trainer.curve[-3:]:
+    print(f"training {cfg.variant}: {cfg.steps} transitions, {cfg.n_envs} flights at "
+          f"once, window {cfg.window()}, batch {cfg.batch_size}, gamma {cfg.agent.gamma}")
+    run = train(cfg, Path(args.out), progress=not args.smoke)
+    for row in run.curve[-3:]:
         print(f"  steps {row['steps']:>6}  eps {row['epsilon']:.2f}  return {row['return']:6.2f}"
               f"  success {row['success']:.2f}  loss {row['loss']:.4f}")
     print(f"model: {Path(args.out) / 'model.npz'}   curve: {Path(args.out) / 'curve.png'}")

@@ -17,7 +17,7 @@ section 9). Read the second when you ask how well a policy flies this kind of wo
 import argparse
 from pathlib import Path
 
-from minid3rqn.rl.commands import SHIPPED_QNET, make_policy
+from minid3rqn.rl.models import SHIPPED_QNET, load_policy
 from minid3rqn.rl.evaluate import evaluate_policy
 
 
@@ -35,7 +35,7 @@ def main():
         specs.append(args.model)
     print(f"{n} flights of 50 steps in fresh '{args.scenario}' worlds (GT depth)")
     for spec in specs:
-        res = evaluate_policy(make_policy(spec), args.scenario, n_flights=n,
+        res = evaluate_policy(load_policy(spec), args.scenario, n_flights=n,
                               max_steps=20 if args.smoke else 50, progress=False)
         print("  " + res.line())
 

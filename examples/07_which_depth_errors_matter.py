@@ -18,9 +18,9 @@ DispNet's depth everywhere except in one part, where ground truth is put back:
 If putting back one part recovers most of the gap, the errors there are what cost the
 flights. First it measures the shape of the DispNet's error on frames of these flights:
 e = ln(predicted / true depth), split into a part per frame, a part per column, a part
-per row (each a mean over the rest) and what is left. Each line is the success rate
-over the same test worlds and start poses (evaluation seed), with its 95% interval; only
-what the net sees changes.
+per row (each a mean over the rest) and what is left; `train-agent --depth-noise`
+draws errors of the first three kinds. Each line is the success rate over the same test worlds and start poses
+(evaluation seed), with its 95% interval; only what the net sees changes.
 
     python examples/07_which_depth_errors_matter.py [--smoke] [--flights 500] \\
         [--qnet M.npz] [--depth-model D.npz] [--near 2.0] [--only NAME ...]
@@ -30,17 +30,17 @@ Ground truth is used only to build the views flown here; nothing is trained.
 import argparse
 import json
 import time
+from dataclasses import asdict
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from minid3rqn.depth.evaluate import log_error_parts
-from minid3rqn.rl.commands import VARIANT_NAMES, horizon_for, load_depth_estimator
+from minid3rqn.rl.models import VARIANT_NAMES, load_depth_estimator
 from minid3rqn.rl.evaluate import evaluate_policy
 from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
 from minid3rqn.rl.policies import QNetPolicy
-from minid3rqn.world import Camera
 
 MODELS = Path(__file__).resolve().parents[1] / "minid3rqn" / "models"
 
@@ -96,7 +96,7 @@ def scale_fixed(gt, pred, cam):
     return pred * s[:, None, None]
 
 
-def error_structure(pol, est, scenario: str, camera: Camera, seed: int, n: int = 64,
+def error_structure(pol, est, scenario: str, cfg: FlightsConfig, seed: int, n: int = 64,
                     steps: int = 20) -> dict:
     """The DispNet's log-depth error e = ln(pred / GT) on the frames of ``n`` flights of
     ``steps`` steps flown by the Q-net in test worlds (both clipped to [0.5 m, 10 m], the range the
@@ -106,8 +106,9 @@ def error_structure(pol, est, scenario: str, camera: Camera, seed: int, n: int =
 
     a the frame's mean, b the column means of e - a, c the row means of e - a - b, r the
     rest. Returns the std of e and of each part (pixels weighted alike)."""
-    fl = Flights(scenario, n, seed=seed, config=FlightsConfig(test_worlds=True),  # fresh worlds
-                 depth="pred", depth_estimator=est, autoreset=True, camera=camera)
+    cfg = FlightsConfig(**{**asdict(cfg), "test_worlds": True})     # fresh worlds
+    fl = Flights(scenario, n, seed=seed, config=cfg, depth="pred", depth_estimator=est,
+                 autoreset=True)
     frames = fl.reset()
     pol.reset(n)
     gts, preds = [], []
@@ -155,8 +156,7 @@ def main():
 
     est = load_depth_estimator(args.depth_model)
     pol = QNetPolicy.load(args.qnet)
-    # the camera the DispNet was trained with; the Q-net must have been trained with it too
-    camera = Camera(horizon_row=horizon_for("07_which_depth_errors_matter", None, est, [pol]))
+    cfg = FlightsConfig()
     chosen = views(args.near)
     if args.only:
         chosen = {k: v for k, v in chosen.items()
@@ -167,7 +167,7 @@ def main():
     from minid3rqn.nets.qnet import variant_name
     print(f"{VARIANT_NAMES[variant_name(pol.qnet.config)]} {args.qnet} on {args.scenario}, "
           f"DispNet {args.depth_model}; {n} flights, evaluation seed {args.seed}")
-    parts = error_structure(pol, est, args.scenario, camera, args.seed,
+    parts = error_structure(pol, est, args.scenario, cfg, args.seed,
                             *((4, 2) if args.smoke else ()))
     print("  the DispNet's error in ln(depth) on %d frames: std %.3f; per frame %.3f, "
           "per column %.3f, per row %.3f, rest %.3f" % (
@@ -176,9 +176,9 @@ def main():
     for name, mix in chosen.items():
         t0 = time.time()
         res = evaluate_policy(pol, args.scenario, n, args.seed, steps, depth="pred",
-                              depth_estimator=est, progress=False, workers=args.workers,
-                              flights_factory=partial(MixedDepthFlights, mix=mix,
-                                                      camera=camera))
+                              depth_estimator=est, flights_config=cfg, progress=False,
+                              workers=args.workers,
+                              flights_factory=partial(MixedDepthFlights, mix=mix))
         print(f"  {name:<26} {res.rate:.3f} [{res.ci_low:.3f}, {res.ci_high:.3f}]  "
               f"({res.successes}/{n}, {time.time() - t0:.0f} s)", flush=True)
         if args.json:

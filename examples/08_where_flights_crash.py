@@ -30,10 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from minid3rqn.rl.commands import horizon_for, load_depth_estimator, make_policy
+from minid3rqn.rl.models import actions_and_camera, load_depth_estimator, load_policy
 from minid3rqn.rl.evaluate import evaluate_policy
 from minid3rqn.rl.flights import Flights
-from minid3rqn.world import Camera
 from minid3rqn.world.distance import KINDS, nearest_distance_batch, nearest_distance_by_kind
 from minid3rqn.world.stepper import action_arcs
 
@@ -109,16 +108,16 @@ def main(argv=None):
     if args.smoke:
         args.scenarios, args.flights = ["intersections"], 40
 
-    policy = make_policy(args.policy, 0)
+    policy = load_policy(args.policy, 0)
+    _, camera = actions_and_camera(policy)
     for scenario in args.scenarios:
         est = (load_depth_estimator(MODELS / f"depth_{scenario}.npz")
                if args.depth == "pred" else None)
-        row = horizon_for("08_where_flights_crash", None, est, [policy])
         log = []
         res = evaluate_policy(policy, scenario, args.flights, args.seed, depth=args.depth,
                               depth_estimator=est, progress=False,
                               flights_factory=partial(CrashLog, log=log,
-                                                      camera=Camera(horizon_row=row)))
+                                                      camera=camera))
         crashes = np.concatenate(log) if log else np.zeros((0, 3))
         assert len(crashes) == res.flights - res.successes   # every failure was a collision
         print(f"{res.line()}\n    {summarise(crashes)}", flush=True)

@@ -18,6 +18,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     # the main job and the decision module (issue: D3RQN)
     "fly": ("minid3rqn.rl.commands", "fly the shipped model: GIF + success rate (the main job)"),
     "train-agent": ("minid3rqn.rl.commands", "train a Q-network (DDQN, D3QN, DDRQN, D3RQN)"),
+    "distil": ("minid3rqn.rl.commands",
+               "ours: train a student Q-net from a GT-depth teacher's Q-values"),
     "evaluate": ("minid3rqn.rl.commands", "success rate over many flights, with a 95%% CI"),
     "reproduce": ("minid3rqn.rl.commands", "rerun Tables 5 and 6 end to end (--quick)"),
     "pool": ("minid3rqn.rl.pool", "pool evaluate --json records by world; A against B"),

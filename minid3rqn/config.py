@@ -121,11 +121,14 @@ def _check_type(name: str, value, hint):
     elif kind is str:
         if not isinstance(value, str):
             raise ConfigError(name, value, "a string")
-    elif kind is list:
-        if not isinstance(value, (list, tuple)) or any(
-                isinstance(x, bool) or not isinstance(x, (int, float)) for x in value):
+    elif kind is list:          # numbers, or rows of numbers (a table)
+        def number(x):
+            return not isinstance(x, bool) and isinstance(x, (int, float))
+        if not isinstance(value, (list, tuple)) or not all(
+                number(x) or (isinstance(x, (list, tuple)) and all(map(number, x)))
+                for x in value):
             raise ConfigError(name, value, "a list of numbers")
-        return list(value)
+        return [list(x) if isinstance(x, (list, tuple)) else x for x in value]
     return value
 
 
@@ -171,8 +174,9 @@ def _leaves(cls, path=()):
             yield path + (f.name,), f, hints[f.name]
 
 
-def _parse_text(name: str, text: str, hint):
-    """A command-line string -> a value of the field's type (UsageError if it is not)."""
+def _parse_text(name: str, text: str, hint, option: str | None = None):
+    """A command-line string -> a value of the field's type (UsageError naming
+    ``option``, default ``--name``, if it is not)."""
     kind, optional = _base_type(hint)
     if optional and text.lower() == "none":
         return None
@@ -191,16 +195,21 @@ def _parse_text(name: str, text: str, hint):
     except ValueError:
         words = {bool: "true or false", int: "an integer", float: "a number",
                  list: "numbers joined by ','"}[kind]
-        raise UsageError(f"{flag(name)}: expected {words}; got {text!r}") from None
+        raise UsageError(f"{option or flag(name)}: expected {words}; got {text!r}") from None
     return text
 
 
+def _is_main(f, name: str, main) -> bool:
+    return name in main if main is not None else f.metadata.get("cli", "more") == "main"
+
+
 def add_arguments(parser: argparse.ArgumentParser, cls, defaults=None,
-                  hide: tuple = ()) -> None:
+                  hide: tuple = (), main: tuple | None = None) -> None:
     """Options for every setting of config class ``cls``: main ones as ``--name``, in
     groups by source; the rest through ``--set NAME=VALUE`` (listed in ``--help``).
     ``defaults``: a config instance whose values are shown as defaults (default
-    ``cls()``); ``hide``: fields the command sets itself."""
+    ``cls()``); ``hide``: fields the command sets itself; ``main``: the names of the
+    main options, if not the fields' own choice (``cli``)."""
     defaults = defaults if defaults is not None else cls()
     groups, more = {}, []
     order = {s: i for i, s in enumerate(SOURCES)}
@@ -210,7 +219,7 @@ def add_arguments(parser: argparse.ArgumentParser, cls, defaults=None,
         if name in hide:
             continue
         value = _get(defaults, path)
-        if f.metadata.get("cli", "more") != "main":
+        if not _is_main(f, name, main):
             more.append(f"  {name}={value}: {f.metadata.get('help', '')}")
             continue
         source = f.metadata.get("source", "ours")
@@ -234,7 +243,8 @@ def add_arguments(parser: argparse.ArgumentParser, cls, defaults=None,
                 kwargs["metavar"] = "{" + ",".join(map(str, f.metadata["choices"])) + "}"
         groups[source].add_argument(flag(name), **kwargs)
     if more:
-        parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+        others = parser.add_argument_group("other settings")
+        others.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                             dest="cfg_set", help="change any other setting (listed below); "
                                                  "repeatable")
         epilog = "other settings (--set NAME=VALUE), with their defaults:\n" + "\n".join(more)
@@ -248,7 +258,7 @@ def _get(cfg, path):
     return cfg
 
 
-def from_args(cls, args: argparse.Namespace, base=None, **fixed):
+def from_args(cls, args: argparse.Namespace, base=None, main: tuple | None = None, **fixed):
     """The config of ``cls`` given by parsed ``args`` (options not given keep ``base``'s
     values, default ``cls()``; ``fixed`` fields are set by the command). A bad value is a
     UsageError naming its option."""
@@ -265,13 +275,13 @@ def from_args(cls, args: argparse.Namespace, base=None, **fixed):
             raise UsageError(f"--set: expected NAME=VALUE with NAME one of "
                              f"{', '.join(sorted(leaves))}; got {item!r}")
         path, hint = leaves[name]
-        values[path] = _parse_text(name, text, hint)
+        values[path] = _parse_text(name, text, hint, f"--set {name}")
     for name, value in fixed.items():
         values[leaves[name][0]] = value
-    return build(cls, values, base)
+    return build(cls, values, base, main)
 
 
-def build(cls, values: dict, base=None):
+def build(cls, values: dict, base=None, main: tuple | None = None):
     """``cls`` with the settings ``values`` ({path: value}) over ``base``'s (default
     ``cls()``); a ConfigError becomes a UsageError naming the option."""
     base = base if base is not None else cls()
@@ -284,16 +294,16 @@ def build(cls, values: dict, base=None):
     try:
         return cls(**data)
     except ConfigError as e:
-        raise UsageError(f"{option_name(cls, e.name)}: expected {e.expected}; got "
+        raise UsageError(f"{option_name(cls, e.name, main)}: expected {e.expected}; got "
                          f"{e.value!r}") from None
 
 
-def option_name(cls, name: str) -> str:
+def option_name(cls, name: str, main: tuple | None = None) -> str:
     """How the command line spells setting ``name`` of ``cls``: ``--name`` or
     ``--set name``."""
     for path, f, _ in _leaves(cls):
         if path[-1] == name:
-            return flag(name) if f.metadata.get("cli", "more") == "main" else f"--set {name}"
+            return flag(name) if _is_main(f, name, main) else f"--set {name}"
     return flag(name)
 
 
@@ -307,7 +317,7 @@ def as_dict(cfg) -> dict:
     return out
 
 
-def command_line(cls, cfg, base=None) -> list[str]:
+def command_line(cls, cfg, base=None, main: tuple | None = None) -> list[str]:
     """The options that give ``cfg`` from ``base`` (default ``cls()``): what a model
     file records, so its command reproduces it."""
     base = base if base is not None else cls()
@@ -318,7 +328,7 @@ def command_line(cls, cfg, base=None) -> list[str]:
             continue
         name = path[-1]
         text = ",".join(map(str, value)) if isinstance(value, list) else str(value)
-        if f.metadata.get("cli", "more") == "main":
+        if _is_main(f, name, main):
             if isinstance(value, bool):
                 out.append(flag(name) if value else "--no-" + flag(name)[2:])
             else:

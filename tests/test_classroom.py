@@ -1,6 +1,6 @@
 """The classroom checkers: each passes the reference solution, and fails with a helpful
 message on the unmodified template (where the exercise asks for a change) and on
-deliberately broken solutions. Plus the adapters that carry a change into training."""
+deliberately broken solutions. Plus the change reaching training as a parameter."""
 import argparse
 import json
 import textwrap
@@ -366,41 +366,35 @@ def test_log_error_parts_splits_the_error():
     assert parts["per column"] > 5 * max(parts["per row"], parts["rest"]), parts
 
 
-def test_depth_fn_applies_in_training_flights_only():
-    import importlib
+def test_depth_fn_applies_to_the_flights_given_it_only():
+    """Flights(depth_fn=...) corrupt every depth map they observe (training); flights
+    made without it (the runner's test flights) see the depth as it is; the same seed
+    flies the same worlds and start poses either way."""
     from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
-    tr, ev = (importlib.import_module(f"minid3rqn.rl.{m}") for m in ("train", "evaluate"))
     cfg = FlightsConfig(n_worlds=2)
 
     def double(depth, rng):
         return depth * 2.0
 
-    with adapters.classroom_flights(depth_fn=double):
-        fl = tr.Flights("basic", 3, seed=0, config=cfg)
+    fl = Flights("basic", 3, seed=0, config=cfg, depth_fn=double)
     frames = fl.reset()
     gt = depth_only(fl.batch, fl.poses, fl.camera)
     np.testing.assert_allclose(fl.last_depth, 2.0 * gt, rtol=1e-6)
-    np.testing.assert_allclose(frames, fl.encode(2.0 * gt), atol=1e-6)
+    np.testing.assert_allclose(frames, np.clip(2.0 * gt, 0, 10) / 10, atol=1e-6)
     res = fl.step(np.zeros(3, np.int64))
     gt = depth_only(fl.batch, fl.poses, fl.camera)
-    np.testing.assert_allclose(res.frames, fl.encode(2.0 * gt), atol=1e-6)
-    # the same seed flies the same worlds and start poses as the library's flights
-    plain, noisy = Flights("basic", 3, seed=0, config=cfg), Flights(
-        "basic", 3, seed=0, config=cfg, depth_fn=lambda d, rng: d * rng.uniform(0.5, 2.0))
+    np.testing.assert_allclose(res.frames, np.clip(2.0 * gt, 0, 10) / 10, atol=1e-6)
+    plain = Flights("basic", 3, seed=0, config=cfg)
+    noisy = Flights("basic", 3, seed=0, config=cfg,
+                    depth_fn=lambda d, rng: d * rng.uniform(0.5, 2.0))
     plain.reset(), noisy.reset()
     assert np.array_equal(plain.world_seeds, noisy.world_seeds)
     np.testing.assert_array_equal(plain.poses, noisy.poses)
     assert not np.allclose(plain.last_depth, noisy.last_depth)
-    # flights made without depth_fn (the runner's test flights) see the depth as it is
-    with adapters.classroom_flights():
-        clean = ev.Flights("basic", 3, seed=0, config=cfg)
-    assert isinstance(clean, Flights) and clean.depth_fn is None
-    clean.reset()
-    np.testing.assert_array_equal(clean.last_depth,
-                                  depth_only(clean.batch, clean.poses, clean.camera))
+    np.testing.assert_array_equal(plain.last_depth,
+                                  depth_only(plain.batch, plain.poses, plain.camera))
     # a corruption that breaks the depth is stopped with a clear message
-    with adapters.classroom_flights(depth_fn=lambda d, rng: -d):
-        bad = tr.Flights("basic", 2, seed=0, config=cfg)
+    bad = Flights("basic", 2, seed=0, config=cfg, depth_fn=lambda d, rng: -d)
     with pytest.raises(ValueError, match="positive finite"):
         bad.reset()
 
@@ -449,7 +443,7 @@ def test_run_depth_errors_smoke(tmp_path, monkeypatch):
     assert "on predicted depth" in table and res["tag"] in table
 
 
-# -- adapters: the change reaches training ---------------------------------------------
+# -- the student's change reaches training as a parameter ----------------------------------
 def test_flights_pay_the_students_reward():
     from minid3rqn.rl.flights import Flights, FlightsConfig
     seen = {}
@@ -464,24 +458,20 @@ def test_flights_pay_the_students_reward():
     np.testing.assert_allclose(seen["yaw"], [0.0, 0.5, -0.5])
     want = np.where(res.terminated, -1.0, 7.0 - np.array([0.0, 0.5, 0.5]))
     np.testing.assert_allclose(res.rewards, want)
+    two = Flights("basic", 3, seed=0, reward_fn=lambda d, c: np.where(c, -1.0, 3.0),
+                  config=FlightsConfig(n_worlds=2))
+    two.reset()
+    res = two.step(np.array([0, 3, 4]))
+    np.testing.assert_allclose(res.rewards, np.where(res.terminated, -1.0, 3.0))
 
 
-def test_patches_are_scoped():
+def test_the_photometric_patch_is_scoped():
     import importlib
-    # import_module, not `import a.b.c as x`: rl/__init__ re-exports a function `train`
-    agent, ev, tr = (importlib.import_module(f"minid3rqn.{m}") for m in
-                     ("rl.agent", "rl.evaluate", "rl.train"))
-    before = (tr.Flights, ev.Flights, agent.double_q_targets)
-    from minid3rqn.rl.flights import FlightsConfig
-    with adapters.classroom_flights(actions=[[2.0, 0.0], [2.0, 0.9]]) as make:
-        assert tr.Flights is make and ev.Flights is make
-        fl = tr.Flights("basic", 1, seed=0, config=FlightsConfig(n_worlds=1))
-        assert fl.n_actions == 2
-    with adapters.td_target(lambda qo, qt, r, t, g: r):
-        y = agent.double_q_targets(np.zeros((1, 2, 3)), np.ones((1, 2, 3)), np.ones((1, 2)),
-                                   np.zeros((1, 2)), 0.9)
-        assert y.dtype == np.float32 and np.all(y == 1)
-    assert before == (tr.Flights, ev.Flights, agent.double_q_targets)
+    dl = importlib.import_module("minid3rqn.depth.losses")
+    before = dl.photometric_error
+    with adapters.photometric_error(lambda p, t: "mine"):
+        assert dl.photometric_error(1, 2, 0.85) == "mine"
+    assert dl.photometric_error is before
 
 
 # -- the runner and the CLI hooks ------------------------------------------------------
@@ -497,6 +487,12 @@ def test_run_agent_exercise_smoke(tmp_path):
     assert 0.0 <= saved["success"] <= 1.0
     assert not (tmp_path / "actions" / res["tag"] / "checkpoint.npz").exists()
     assert res["gif"] and Path(res["gif"]).is_file()
+    # the 7-action model flies with its own table: evaluate reads it from the file
+    from minid3rqn.rl.evaluate import evaluate_policy
+    from minid3rqn.rl.models import load_policy
+    pol = load_policy(str(tmp_path / "actions" / res["tag"] / "model.npz"))
+    assert evaluate_policy(pol, "basic", n_flights=2, chunk=2, max_steps=2,
+                           progress=False).flights == 2
 
 
 def test_run_depth_exercise_smoke(tmp_path):

@@ -26,3 +26,30 @@ def test_python_dash_m_runs():
     done = subprocess.run([sys.executable, "-m", "minid3rqn", "--help"], capture_output=True,
                           text=True, timeout=60)
     assert done.returncode == 0 and "train-agent" in done.stdout
+
+
+def visible_options(name: str) -> list[str]:
+    """The options a command's --help shows (-h and positional arguments left out)."""
+    from minid3rqn.cli import build_parser
+    parser = build_parser(only=name)
+    sub = next(a for a in parser._actions if a.dest == "command").choices[name]
+    return [a.option_strings[0] for a in sub._actions
+            if a.option_strings and a.option_strings[0] not in ("-h", "--help")]
+
+
+@pytest.mark.parametrize("names, most", [(("train-agent",), 20), (("distil",), 10),
+                                         (("evaluate",), 12), (("fly",), 8),
+                                         (("reproduce",), 6), (("pool",), 4),
+                                         (("calibrate",), 3), (("check", "exercise"), 6)])
+def test_each_command_keeps_to_its_option_budget(names, most):
+    got = [o for name in names for o in visible_options(name)]
+    assert len(got) <= most, got
+
+
+def test_the_paper_and_the_budget_come_first_in_train_agent_help(capsys):
+    with pytest.raises(SystemExit):
+        main(["train-agent", "--help"])
+    out = capsys.readouterr().out
+    groups = [out.index(title) for title in ("the paper's settings:", "budget (scaled",
+                                             "the run:", "other settings:")]
+    assert groups == sorted(groups) and "--batch-size" in out and "--gamma" in out

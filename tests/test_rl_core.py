@@ -6,7 +6,9 @@ from minid3rqn import autograd as ag
 from minid3rqn.nets.qnet import QNetConfig, VARIANTS, build_qnet
 from minid3rqn.rl.agent import Agent, AgentConfig, FrameStacker, double_q_targets
 from minid3rqn.rl.replay import EpisodeReplay
-from minid3rqn.rl.policies import EnsemblePolicy, QNetPolicy, mirror_permutation
+from minid3rqn.rl.mirror import MirroredPolicy, mirror_permutation, mirror_q, mirror_windows
+from minid3rqn.rl.policies import EnsemblePolicy, QNetPolicy
+from minid3rqn.world import ACTIONS
 
 pytestmark = pytest.mark.rl
 
@@ -149,26 +151,6 @@ def test_recurrent_state_reset_and_advanced_on_random_actions():
     np.testing.assert_allclose(pol.last_q[0], q_fresh[0], rtol=1e-5, atol=1e-6)
 
 
-def test_window_policy_acts_on_the_last_frames_of_its_own_flight():
-    """window=3: Q is the net run from a zero state over the flight's last 3 frames (or
-    fewer after a restart), never over frames of an earlier flight."""
-    cfg = QNetConfig(width=8)
-    net = Agent(cfg, AgentConfig(), rng=0).online
-    rng = np.random.default_rng(1)
-    frames = rng.random((6, 2, H, W)).astype(np.float32)       # 6 steps, 2 flights
-    pol = QNetPolicy(net, window=3)
-    pol.reset(2)
-    for t in range(6):   # flight 1 restarts at step 4
-        pol.act({"frames": frames[t]}, started=np.array([False, t == 4]))
-
-    def q_over(seq):     # (T, H, W) -> Q of the last step from a zero state
-        with ag.no_grad():
-            q, _ = net(seq[:, None, None])
-        return q.data[-1, 0]
-    np.testing.assert_allclose(pol.last_q[0], q_over(frames[3:6, 0]), rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(pol.last_q[1], q_over(frames[4:6, 1]), rtol=1e-5, atol=1e-6)
-
-
 def test_ensemble_acts_greedily_on_the_members_mean_q():
     """Each member carries its own state through the flight (and resets it on a
     restart); the ensemble's Q is their mean, its action that mean's argmax."""
@@ -189,7 +171,7 @@ def test_ensemble_acts_greedily_on_the_members_mean_q():
         np.testing.assert_array_equal(a, np.argmax(mean, axis=1))
     with pytest.raises(ValueError, match="at least 2"):
         EnsemblePolicy([QNetPolicy(nets[0])])
-    with pytest.raises(TypeError, match=r"members\[1\] must be a QNetPolicy"):
+    with pytest.raises(TypeError, match=r"members\[1\] must be a Q-net policy"):
         EnsemblePolicy([QNetPolicy(nets[0]), "model.npz"])
     with pytest.raises(ValueError, match="must share"):
         EnsemblePolicy([QNetPolicy(nets[0]),
@@ -205,23 +187,19 @@ def test_mirror_permutation():
         mirror_permutation([[2.0, 0.0], [2.0, 0.3]])
 
 
-@pytest.mark.parametrize("window", [None, 3])
-def test_mirrored_policy_flies_the_mirrored_view(window):
-    """mirror=True on frames x is the plain policy on x mirrored, with each action's
-    Q-value reported under its mirror image; through a flight, a restart, and with the
-    window. Plain + mirrored as an ensemble is then exactly mirror-symmetric."""
-    from minid3rqn.world import ACTIONS
+def test_mirrored_policy_flies_the_mirrored_view():
+    """MirroredPolicy on frames x is the plain policy on x mirrored, with each action's
+    Q-value reported under its mirror image; through a flight and a restart. Plain +
+    mirrored as an ensemble is then exactly mirror-symmetric."""
     perm = mirror_permutation(ACTIONS)
     net = build_qnet("d3rqn", rng=0, width=8)
     rng = np.random.default_rng(3)
     frames = rng.random((5, 2, H, W)).astype(np.float32)        # 5 steps, 2 flights
     flipped = np.ascontiguousarray(frames[..., ::-1])
-    plain = QNetPolicy(net, window=window)
-    mirrored = plain.mirrored()
-    both = EnsemblePolicy([QNetPolicy(net, window=window), QNetPolicy(net, window=window,
-                                                                       mirror=True)])
-    both_flipped = EnsemblePolicy([QNetPolicy(net, window=window),
-                                   QNetPolicy(net, window=window, mirror=True)])
+    plain = QNetPolicy(net)
+    mirrored = MirroredPolicy(plain, ACTIONS)
+    both = EnsemblePolicy([QNetPolicy(net), MirroredPolicy(QNetPolicy(net), ACTIONS)])
+    both_flipped = EnsemblePolicy([QNetPolicy(net), MirroredPolicy(QNetPolicy(net), ACTIONS)])
     for p in (plain, mirrored, both, both_flipped):
         p.reset(2)
     for t in range(5):
@@ -234,52 +212,47 @@ def test_mirrored_policy_flies_the_mirrored_view(window):
         both_flipped.act({"frames": flipped[t]}, started=started)
         np.testing.assert_allclose(both_flipped.last_q, both.last_q[:, perm], rtol=1e-5,
                                    atol=1e-7)
-    assert mirrored.mirror and not mirrored.mirrored().mirror
     with pytest.raises(ValueError, match="action table"):
-        QNetPolicy(build_qnet("d3rqn", rng=0, width=8, n_actions=3), mirror=True)
+        MirroredPolicy(QNetPolicy(build_qnet("d3rqn", rng=0, width=8, n_actions=3)), ACTIONS)
 
 
 def test_mirrored_batch_flips_the_chosen_windows_only():
-    """SequenceBatch.mirrored: the chosen windows' frames flipped along the width, their
-    actions and teacher labels mapped to the mirror images; the rest, and rewards,
+    """mirror_windows: the chosen windows' frames flipped along the width, their actions
+    mapped to the mirror images (mirror_q: Q-values likewise); the rest, and rewards,
     terminals and mask, untouched; mirroring twice gives the batch back."""
     from minid3rqn.rl.replay import SequenceBatch
-    from minid3rqn.world import ACTIONS
     perm = mirror_permutation(ACTIONS)
     rng = np.random.default_rng(0)
     L, B, A = 3, 4, len(ACTIONS)
     batch = SequenceBatch(obs=rng.random((L + 1, B, 1, 2, 5)).astype(np.float32),
                           actions=rng.integers(0, A, (L, B)), rewards=rng.random((L, B)),
-                          terminals=np.zeros((L, B)), mask=np.ones((L, B)),
-                          labels=rng.random((L, B, A)))
+                          terminals=np.zeros((L, B)), mask=np.ones((L, B)))
+    labels = rng.random((L, B, A))
     which = np.array([True, False, True, False])
-    m = batch.mirrored(which, perm)
+    m = mirror_windows(batch, which, perm)
     np.testing.assert_array_equal(m.obs[:, which], batch.obs[:, which][..., ::-1])
     np.testing.assert_array_equal(m.obs[:, ~which], batch.obs[:, ~which])
     np.testing.assert_array_equal(m.actions[:, which], perm[batch.actions[:, which]])
     np.testing.assert_array_equal(m.actions[:, ~which], batch.actions[:, ~which])
     # the label of action a is the teacher's Q-value of a's mirror image
-    np.testing.assert_array_equal(m.labels[:, which], batch.labels[:, which][..., perm])
-    np.testing.assert_array_equal(m.labels[:, ~which], batch.labels[:, ~which])
+    ml = mirror_q(labels, which, perm)
+    np.testing.assert_array_equal(ml[:, which], labels[:, which][..., perm])
+    np.testing.assert_array_equal(ml[:, ~which], labels[:, ~which])
     assert m.rewards is batch.rewards and m.mask is batch.mask
-    back = m.mirrored(which, perm)
-    for name in ("obs", "actions", "labels"):
+    back = mirror_windows(m, which, perm)
+    for name in ("obs", "actions"):
         np.testing.assert_array_equal(getattr(back, name), getattr(batch, name))
-    # the original is not changed, and a batch without labels stays without
-    assert batch.mirrored(which, perm).obs is not batch.obs
-    nolabels = SequenceBatch(batch.obs, batch.actions, batch.rewards, batch.terminals,
-                             batch.mask)
-    assert nolabels.mirrored(which, perm).labels is None
+    np.testing.assert_array_equal(mirror_q(ml, which, perm), labels)
+    assert mirror_windows(batch, which, perm).obs is not batch.obs   # a copy
     with pytest.raises(ValueError, match="which must be a bool mask of the 4 windows"):
-        batch.mirrored(np.array([True, False]), perm)
+        mirror_windows(batch, np.array([True, False]), perm)
 
 
 def test_mirrored_frames_give_the_mirrored_q_values():
     """What the augmentation teaches is consistent: a net that is exactly mirror-
     symmetric gives, on a mirrored window, the Q-values of the window with each action
-    replaced by its mirror image -- the labels SequenceBatch.mirrored writes."""
+    replaced by its mirror image -- the labels mirror_q writes."""
     from minid3rqn.rl.replay import SequenceBatch
-    from minid3rqn.world import ACTIONS
     perm = mirror_permutation(ACTIONS)
     net = build_qnet("d3rqn", rng=0, width=8)
     frames = np.random.default_rng(1).random((5, 3, 1, H, W)).astype(np.float32)
@@ -290,9 +263,11 @@ def test_mirrored_frames_give_the_mirrored_q_values():
         return 0.5 * (q.data + qm.data[..., perm])
     q = symmetric_q(frames)
     batch = SequenceBatch(frames, np.zeros((4, 3), np.int64), np.zeros((4, 3)),
-                          np.zeros((4, 3)), np.ones((4, 3)), labels=q[:4])
-    m = batch.mirrored(np.ones(3, bool), perm)
-    np.testing.assert_allclose(symmetric_q(m.obs)[:4], m.labels, rtol=1e-5, atol=1e-6)
+                          np.zeros((4, 3)), np.ones((4, 3)))
+    which = np.ones(3, bool)
+    m = mirror_windows(batch, which, perm)
+    np.testing.assert_allclose(symmetric_q(m.obs)[:4], mirror_q(q[:4], which, perm),
+                               rtol=1e-5, atol=1e-6)
 
 
 def test_frame_stacker():

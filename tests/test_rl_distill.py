@@ -1,43 +1,62 @@
-"""Distillation from a privileged teacher (rl/distill.py): labels, mixing, loss, resume, errors."""
-import argparse
+"""Distillation from a privileged teacher (rl/distill.py): labels, mixing, loss, resume,
+errors; and growing a net's LSTM with the same Q-values (``init_widen``; nets/qnet.py)."""
+import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from minid3rqn.rl import commands
+from minid3rqn.cli import main
+from minid3rqn.config import ConfigError
 from minid3rqn.rl.agent import AgentConfig
-from minid3rqn.rl.distill import Distiller, LabelledReplay, load_teacher
+from minid3rqn.rl.distill import (DistilConfig, Distillation, LabelledReplay, distil, kl_term,
+                                  load_teacher)
 from minid3rqn.rl.flights import Flights, FlightsConfig
-from minid3rqn.rl.train import TrainConfig, Trainer, train
+from minid3rqn.rl.train import TrainConfig, start_run
+from minid3rqn.world import ACTIONS
 
 pytestmark = pytest.mark.rl
 
 ROOT = Path(__file__).resolve().parent.parent
 TEACHER = str(ROOT / "minid3rqn" / "models" / "d3rqn_basic.npz")
+STUDENT = dict(steps=96, learning_starts=32, n_envs=4, log_every=32, checkpoint_every=48,
+               hidden=16, replay_capacity=1000, n_worlds=2, depth="gt", conv_channels=None)
 
 
-def small_config(**kw) -> TrainConfig:
-    base = dict(total_steps=96, learning_starts=32, n_envs=4, log_every=32, checkpoint_every=48,
-                hidden=16, replay_capacity=1000, teachers=TEACHER, teacher_mix=0.5,
-                teacher_mix_steps=64, flights=FlightsConfig(n_worlds=2))
-    base.update(kw)
-    return TrainConfig(**base)
+def small_config(train=None, **kw) -> DistilConfig:
+    base = dict(teachers=TEACHER, teacher_mix=0.5, teacher_mix_steps=64, distil_kl=0.0,
+                mirror_augment=False)
+    return DistilConfig(**{**base, **kw}, train=replace(TrainConfig(), **{**STUDENT,
+                                                                         **(train or {})}))
 
 
-def run_and_resume(cls, cfg, folder, until):
-    """Run ``cls(cfg)`` to ``until``, checkpoint, resume a twin from the checkpoint, run
-    both to the end and assert the same weights; return the first run."""
-    a = cls(cfg, folder, progress=False)
-    a.run(until=until)
-    a.save_checkpoint()
-    b = cls.resume(folder, progress=False)
-    a.run()
-    b.run()
-    assert a.agent.updates > 0 and a.steps == cfg.total_steps
-    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
-        np.testing.assert_array_equal(p.data, q.data)
+def weights(run) -> list:
+    return [p.data for p in run.agent.online.parameters()]
+
+
+def run_and_resume(cfg, folder, until):
+    """Distil ``cfg`` to ``until`` transitions, then resume it to the end from its
+    checkpoint; assert the same weights as a run made in one go; return that run."""
+    distil(replace(cfg, train=replace(cfg.train, steps=until)), folder / "cut",
+           progress=False)
+    b = distil(cfg, folder / "cut", progress=False, resume=True)
+    a = distil(cfg, folder / "whole", progress=False)
+    assert a.agent.updates > 0 and a.steps == cfg.train.steps
+    for p, q in zip(weights(a), weights(b)):
+        np.testing.assert_array_equal(p, q)
     return a
+
+
+def distillation(cfg: DistilConfig, folder, depth_estimator=None):
+    """A distillation's run, started, and its steps (what ``distil`` hands the loop)."""
+    from minid3rqn.rl import distill
+    teacher = load_teacher(cfg.teachers, (32, 104), 5)
+    teacher.reset(cfg.train.n_envs)
+    steps = Distillation(cfg, teacher, ACTIONS, 7)
+    run = start_run(cfg.train, folder, depth_estimator,
+                    replay=lambda c, n, s, seed: distill.LabelledReplay(c, n, s, 5, seed=seed))
+    return run, steps
 
 
 def test_labelled_replay_labels_stay_with_their_frames():
@@ -97,39 +116,45 @@ def test_gt_frames_are_the_gt_observation_in_pred_mode():
 
 
 def test_full_teacher_mix_flies_the_teachers_actions(tmp_path):
-    d = Distiller(small_config(teacher_mix=1.0, teacher_mix_steps=10 ** 9), tmp_path,
-                  progress=False)
-    d._start()
-    d._started = True
+    run, steps = distillation(small_config(teacher_mix=1.0, teacher_mix_steps=10 ** 9),
+                              tmp_path)
     for _ in range(6):
-        actions = d.choose_actions()
-        np.testing.assert_array_equal(actions, np.argmax(d.teacher.last_q, axis=1))
-        res = d.flights.step(actions)
+        actions = steps.act(run)
+        np.testing.assert_array_equal(actions, np.argmax(steps.teacher.last_q, axis=1))
+        res = run.flights.step(actions)
         done = res.terminated | res.truncated
-        d.replay.add_step(actions, res.rewards, res.terminated, res.truncated, res.final_frames)
+        run.replay.add_step(actions, res.rewards, res.terminated, res.truncated,
+                            res.final_frames)
         if done.any():
-            d.replay.start_episodes(np.flatnonzero(done), res.frames[done])
-            d.episodes_ended(done)
-        d.stacker.push(res.frames)
+            run.replay.start_episodes(np.flatnonzero(done), res.frames[done])
+            run.state = run.agent.reset_state(run.state, done)
+        run.stacker.push(res.frames)
 
 
 def test_teacher_mix_decays_linearly_to_zero(tmp_path):
-    d = Distiller(small_config(teacher_mix=0.8, teacher_mix_steps=100), tmp_path, progress=False)
-    assert d.teacher_mix_at(0) == pytest.approx(0.8)
-    assert d.teacher_mix_at(50) == pytest.approx(0.4)
-    assert d.teacher_mix_at(100) == 0.0 and d.teacher_mix_at(10 ** 6) == 0.0
+    _, steps = distillation(small_config(teacher_mix=0.8, teacher_mix_steps=100), tmp_path)
+    assert steps.mix_at(0) == pytest.approx(0.8)
+    assert steps.mix_at(50) == pytest.approx(0.4)
+    assert steps.mix_at(100) == 0.0 and steps.mix_at(10 ** 6) == 0.0
+
+
+def _filled(cfg, folder):
+    """A distillation run whose replay holds 64 transitions, not yet learned from."""
+    run = distil(replace(cfg, train=replace(cfg.train, steps=64, learning_starts=10 ** 6)),
+                 folder, progress=False)
+    _, steps = distillation(cfg, folder / "twin")
+    return run, steps
 
 
 def test_distillation_lowers_the_loss_on_a_fixed_batch(tmp_path):
     """The update moves the student's Q-values toward the teacher's labels."""
-    cfg = small_config(total_steps=64, learning_starts=10 ** 6, agent=AgentConfig(lr=1e-2))
-    d = Distiller(cfg, tmp_path, progress=False)
-    d.run()
-    batch = d.replay.sample(8, seq_len=5)
+    cfg = small_config(train={"agent": AgentConfig(lr=1e-2)})
+    run, steps = _filled(cfg, tmp_path)
+    batch = run.replay.sample(8, seq_len=5)
     target = float((batch.labels * batch.mask[:, :, None]).sum() / (5 * batch.mask.sum()))
     losses, q_means = [], []
     for _ in range(25):
-        info = d.learn(batch)
+        info = steps.learn(run, batch)
         losses.append(info["loss"])
         q_means.append(info["q_mean"])
     assert losses[-1] < losses[0]
@@ -138,19 +163,11 @@ def test_distillation_lowers_the_loss_on_a_fixed_batch(tmp_path):
 
 
 def test_distillation_smoke_and_exact_resume(tmp_path):
-    a = run_and_resume(Distiller, small_config(), tmp_path / "a", until=48)
+    a = run_and_resume(small_config(), tmp_path, until=48)
     assert {"teacher_mix", "agree"} <= set(a.curve[-1])
-    assert a.curve[-1]["teacher_mix"] == 0.0
 
 
-def test_train_picks_the_distiller_and_plain_trainer_refuses_teachers(tmp_path):
-    tr = train(small_config(total_steps=32, learning_starts=16), tmp_path, progress=False)
-    assert isinstance(tr, Distiller)
-    with pytest.raises(ValueError, match="Distiller"):
-        Trainer(small_config(), tmp_path / "t", progress=False)
-
-
-def test_bad_teachers_get_clear_errors(tmp_path):
+def test_bad_teachers_and_settings_get_clear_errors(tmp_path, capsys):
     shape, n = (32, 104), 5
     with pytest.raises(ValueError, match="not a file"):
         load_teacher(str(tmp_path / "missing.npz"), shape, n)
@@ -161,201 +178,166 @@ def test_bad_teachers_get_clear_errors(tmp_path):
     with pytest.raises(ValueError, match="actions"):
         load_teacher(TEACHER, shape, 7)
     assert load_teacher(TEACHER + "+" + TEACHER, shape, n).name == "teacher"
-    with pytest.raises(ValueError, match="teacher_mix"):
-        Distiller(small_config(teacher_mix=1.5), tmp_path, progress=False)
-    with pytest.raises(ValueError, match="teachers"):
-        Distiller(small_config(teachers=""), tmp_path, progress=False)
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    args = p.parse_args(["--smoke", "--quiet", "--teachers", "random", "--out",
-                         str(tmp_path / "cli")])
-    with pytest.raises(SystemExit, match="--teachers.*not a file"):
-        commands.run_train_agent(args)
+    for bad, name in (({"teacher_mix": 1.5}, "teacher_mix"),
+                      ({"teacher_mix_steps": 0}, "teacher_mix_steps"),
+                      ({"distil_kl": -1.0}, "distil_kl"),
+                      ({"distil_kl": float("nan")}, "distil_kl"),
+                      ({"distil_temperature": 0.0}, "distil_temperature")):
+        with pytest.raises(ConfigError, match=name):
+            small_config(**bad)
+    with pytest.raises(ValueError, match="teachers is empty"):
+        distil(small_config(teachers=""), tmp_path, progress=False)
+    for argv, says in ((["--teachers", "random"], "--teachers: 'random' is not a file"),
+                       (["--teachers", TEACHER, "--set", "distil_kl=-1"],
+                        "--set distil_kl: expected a number >= 0"),
+                       (["--teachers", TEACHER, "--set", "distil_temperature=-1"],
+                        "--set distil_temperature: expected a number > 0"),
+                       (["--teachers", TEACHER, "--set", "init_widen=true"],
+                        "init_widen.*--init-model")):
+        assert main(["distil", "--smoke", "--out", str(tmp_path / "cli"), *argv]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and re.search(says, err), err
 
 
 def test_mirror_augmentation_is_seeded_resumable_and_leaves_other_runs_alone(tmp_path):
-    """--mirror-augment: the run resumes exactly and repeats from its seed; it learns
-    from mirrored windows (a different student from the same seed without it), and its
-    random stream does not move the runs without it (they fly the same flights)."""
-    a = run_and_resume(Distiller, small_config(mirror_augment=True), tmp_path / "a", until=48)
-    assert a.mirror_of is not None
-    assert Distiller.resume(tmp_path / "a", progress=False).cfg.mirror_augment
-    plain = Distiller(small_config(), tmp_path / "p", progress=False)
-    plain.run()
-    assert plain.mirror_of is None
-    assert any(not np.array_equal(p.data, q.data)
-               for p, q in zip(a.agent.online.parameters(), plain.agent.online.parameters()))
-    # the augmentation draws from a stream of its own: built from one seed, the two
-    # runs start with the same weights and the same action and replay streams
-    fresh = [Distiller(small_config(mirror_augment=m), tmp_path / f"f{m}", progress=False)
-             for m in (False, True)]
-    for p, q in zip(*(f.agent.online.parameters() for f in fresh)):
-        np.testing.assert_array_equal(p.data, q.data)
-    assert fresh[0].rng.bit_generator.state == fresh[1].rng.bit_generator.state
-    assert fresh[0].replay.rng.bit_generator.state == fresh[1].replay.rng.bit_generator.state
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    args = p.parse_args(["--smoke", "--mirror-augment", "--out", str(tmp_path / "cli")])
-    got = commands.config_from_args(args)
-    assert got.mirror_augment and not got.teacher_mirror
-    args = p.parse_args(["--smoke", "--teacher-mirror", "--out", str(tmp_path / "cli")])
-    got = commands.config_from_args(args)
-    assert got.teacher_mirror and not got.mirror_augment
+    """mirror_augment: the run resumes exactly and repeats from its seed; it learns from
+    mirrored windows (a different student from the same seed without it); its generator
+    is a stream of its own, so until the first update both runs fly the same flights."""
+    a = run_and_resume(small_config(mirror_augment=True), tmp_path / "a", until=48)
+    plain = distil(small_config(), tmp_path / "p", progress=False)
+    assert any(not np.array_equal(p, q) for p, q in zip(weights(a), weights(plain)))
+    assert a.curve[0]["agree"] == plain.curve[0]["agree"]         # before learning starts
 
 
-def test_q_learning_with_mirror_augmentation_resumes_exactly(tmp_path):
-    cfg = TrainConfig(total_steps=96, learning_starts=32, n_envs=4, log_every=32,
-                      checkpoint_every=48, hidden=16, replay_capacity=1000,
-                      mirror_augment=True, flights=FlightsConfig(n_worlds=2))
-    run_and_resume(Trainer, cfg, tmp_path / "a", until=48)
+def test_mirror_augmentation_needs_a_symmetric_action_table(tmp_path):
+    """A classroom action table without mirror images gets a clear error."""
+    table = [[2.0, 0.0], [2.0, 0.3], [2.0, 0.6]]
+    teacher = str(tmp_path / "three.npz")
+    from minid3rqn.nets.qnet import QNet, QNetConfig
+    QNet(QNetConfig(n_actions=3, width=8), rng=0).save(
+        teacher, {"kind": "qnet", "qnet_config": QNetConfig(n_actions=3, width=8).to_dict()})
+    cfg = small_config(teachers=teacher, mirror_augment=True, train={"actions": table})
+    with pytest.raises(ValueError, match="no mirror image"):
+        distil(cfg, tmp_path / "run", progress=False)
 
 
-def test_a_mirrored_teacher_is_the_nets_and_their_mirror_images(tmp_path):
-    """--teacher-mirror: the teacher ensemble holds each net and its mirrored twin, so its
-    Q-values on a mirrored view are its Q-values on the view, mirrored (exactly
-    symmetric); the run resumes exactly with the twins' memories."""
-    from minid3rqn.rl.policies import EnsemblePolicy, mirror_permutation
-    from minid3rqn.world import ACTIONS
-    shape, n = (32, 104), 5
-    t = load_teacher(TEACHER, shape, n, mirror=True)
-    assert isinstance(t, EnsemblePolicy) and len(t.members) == 2
-    assert [m.mirror for m in t.members] == [False, True]
-    assert len(load_teacher(TEACHER + "+" + TEACHER, shape, n, mirror=True).members) == 4
-    perm = mirror_permutation(ACTIONS)
-    frames = np.random.default_rng(0).random((3, 2, *shape)).astype(np.float32)
-    a, b = (load_teacher(TEACHER, shape, n, mirror=True) for _ in range(2))
-    a.reset(2)
-    b.reset(2)
-    for k in range(3):
-        a.act({"frames": frames[k]}, started=np.full(2, k == 0))
-        b.act({"frames": np.ascontiguousarray(frames[k][..., ::-1])},
-              started=np.full(2, k == 0))
-        np.testing.assert_allclose(b.last_q, a.last_q[:, perm], rtol=1e-5, atol=1e-6)
-    run_and_resume(Distiller, small_config(teacher_mirror=True), tmp_path / "a", until=48)
-
-
-def test_mirror_augmentation_needs_a_symmetric_action_table(tmp_path, monkeypatch):
-    """A classroom action table without mirror images gets a clear error naming the flag."""
-    import minid3rqn.rl.flights as flights_module
-    monkeypatch.setattr(flights_module, "ACTIONS",
-                        np.array([[2.0, 0.0], [2.0, 0.3], [2.0, 0.6]]))
-    cfg = TrainConfig(total_steps=32, learning_starts=16, n_envs=2, hidden=16,
-                      replay_capacity=200, mirror_augment=True,
-                      flights=FlightsConfig(n_worlds=1))
-    with pytest.raises(ValueError, match=r"--mirror-augment.*symmetric action table"):
-        Trainer(cfg, tmp_path, progress=False)
-
-
-def test_a_teacher_on_predicted_depth_reads_the_students_frames(tmp_path):
-    """--teacher-depth pred: the labels are the teacher's Q-values of the student's own
-    frame (here a stand-in DispNet's flat 5 m), not of the GT frame; the default reads
-    GT. A teacher on predicted depth needs a student on it: clear errors otherwise."""
-    def first_labels(teacher_depth):
-        d = Distiller(small_config(depth="pred", teacher_depth=teacher_depth),
-                      tmp_path / teacher_depth, depth_estimator=_Flat(), progress=False)
-        d._start()
-        d.choose_actions()
-        return d, d.teacher.last_q.copy()
-
-    d, got = first_labels("pred")
-    assert np.allclose(d.stacker.obs[:, -1], 0.5)
-    twin = load_teacher(TEACHER, d.frame_shape, d.flights.n_actions)
-    twin.reset(d.cfg.n_envs)
-    twin.act({"frames": d.stacker.obs[:, -1]}, started=np.ones(d.cfg.n_envs, bool))
-    np.testing.assert_array_equal(got, twin.last_q)
-    d_gt, got_gt = first_labels("gt")
-    twin.reset(d.cfg.n_envs)
-    twin.act({"frames": d_gt.flights.gt_frames()}, started=np.ones(d.cfg.n_envs, bool))
-    np.testing.assert_array_equal(got_gt, twin.last_q)
-    assert not np.allclose(got, got_gt)
-    with pytest.raises(ValueError, match="teacher_depth is 'gt' or 'pred'"):
-        Distiller(small_config(teacher_depth="GT"), tmp_path / "bad", progress=False)
-    with pytest.raises(ValueError, match="teacher_depth='pred'.*depth='pred'.*'gt'"):
-        Distiller(small_config(teacher_depth="pred"), tmp_path / "bad", progress=False)
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    args = p.parse_args(["--smoke", "--teachers", TEACHER, "--teacher-depth", "pred",
-                         "--out", str(tmp_path / "cli")])
-    with pytest.raises(SystemExit, match="--teacher-depth pred.*--depth pred; got.*--depth gt"):
-        commands.config_from_args(args)
-    args = p.parse_args(["--smoke", "--depth", "pred", "--teachers", TEACHER,
-                         "--teacher-depth", "pred", "--out", str(tmp_path / "cli")])
-    assert commands.config_from_args(args).teacher_depth == "pred"
-
-
-def test_the_kl_term_sees_only_action_preferences_and_is_gradient_checked(tmp_path):
+def test_the_kl_term_sees_only_action_preferences_and_is_gradient_checked():
     """L_KL is 0 when the student prefers actions as the teacher does, whatever the Q-values'
     level; positive otherwise; padded steps count for nothing; its gradient is checked
     against central differences (float64)."""
     from minid3rqn import autograd as ag
-    d = Distiller(small_config(distil_kl=1.0, distil_temperature=0.5), tmp_path, progress=False)
     rng = np.random.default_rng(0)
     labels = rng.normal(14.0, 1.0, (5, 3, 5))
     mask = np.ones((5, 3))
     mask[3:, 2] = 0.0                                   # an episode that ended early
-    same = d.kl_term(ag.Tensor(labels - 3.0), labels, mask)
+    same = kl_term(ag.Tensor(labels - 3.0), labels, mask, 0.5)
     assert abs(float(same.data)) < 1e-12
     q = rng.normal(14.0, 1.0, (5, 3, 5))
-    assert float(d.kl_term(ag.Tensor(q), labels, mask).data) > 0
+    assert float(kl_term(ag.Tensor(q), labels, mask, 0.5).data) > 0
     q_pad = q.copy()
     q_pad[3:, 2] += rng.normal(0, 5.0, (2, 5))          # change only the padded steps
-    assert float(d.kl_term(ag.Tensor(q_pad), labels, mask).data) == pytest.approx(
-        float(d.kl_term(ag.Tensor(q), labels, mask).data))
-    ag.gradcheck(lambda t: d.kl_term(t, labels, mask), [q])
+    assert float(kl_term(ag.Tensor(q_pad), labels, mask, 0.5).data) == pytest.approx(
+        float(kl_term(ag.Tensor(q), labels, mask, 0.5).data))
+    ag.gradcheck(lambda t: kl_term(t, labels, mask, 0.5), [q])
 
 
 def test_distillation_with_the_kl_term_lowers_it_on_a_fixed_batch(tmp_path):
-    cfg = small_config(total_steps=64, learning_starts=10 ** 6, agent=AgentConfig(lr=1e-2),
-                       distil_kl=1.0, distil_temperature=0.1)
-    d = Distiller(cfg, tmp_path, progress=False)
-    d.run()
-    batch = d.replay.sample(8, seq_len=5)
-    kls = [d.learn(batch)["kl"] for _ in range(25)]
+    cfg = small_config(distil_kl=1.0, distil_temperature=0.1,
+                       train={"agent": AgentConfig(lr=1e-2)})
+    run, steps = _filled(cfg, tmp_path)
+    batch = run.replay.sample(8, seq_len=5)
+    kls = []
+    for _ in range(25):
+        steps.learn(run, batch)
+        kls.append(run.notes["kl"][-1])
     assert np.isfinite(kls).all() and kls[-1] < kls[0]
 
 
 def test_distillation_with_the_kl_term_resumes_exactly(tmp_path):
-    """The KL settings travel in the checkpoint: a resumed run ends on the same weights."""
-    a = run_and_resume(Distiller, small_config(distil_kl=1.0, distil_temperature=0.1),
-                       tmp_path / "a", until=48)
-    assert a.cfg.distil_kl == 1.0
+    a = run_and_resume(small_config(distil_kl=1.0, distil_temperature=0.1), tmp_path,
+                       until=48)
     assert np.isfinite(a.curve[-1]["kl"]) and a.curve[-1]["kl"] >= 0
 
 
-def test_bad_kl_settings_get_clear_errors(tmp_path):
-    with pytest.raises(ValueError, match="distil_kl"):
-        Distiller(small_config(distil_kl=-1.0), tmp_path, progress=False)
-    with pytest.raises(ValueError, match="distil_temperature"):
-        Distiller(small_config(distil_kl=1.0, distil_temperature=0.0), tmp_path, progress=False)
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    for argv, match in [(["--distil-kl", "1"], "needs --teachers"),
-                        (["--teachers", TEACHER, "--distil-kl", "nan"], "weight >= 0"),
-                        (["--teachers", TEACHER, "--distil-temperature", "-1"], "temperature > 0")]:
-        args = p.parse_args(["--smoke", "--quiet", "--out", str(tmp_path / "cli"), *argv])
-        with pytest.raises(SystemExit, match=match):
-            commands.run_train_agent(args)
-
-
-def test_window_length_and_batch_size_are_settable_and_checked(tmp_path, monkeypatch):
-    """``--seq-len`` and ``--batch-size`` reach the replay's sampler; bad values are named."""
-    d = Distiller(small_config(seq_len=9, batch_size=3, total_steps=64), tmp_path, progress=False)
+def test_window_length_and_batch_size_reach_the_sampler(tmp_path, monkeypatch):
+    """``--seq-len`` and ``--batch-size`` reach the replay's sampler."""
+    from minid3rqn.rl import distill
     seen = []
-    sample = d.replay.sample
-    monkeypatch.setattr(d.replay, "sample",
-                        lambda *a, **k: seen.append(a) or sample(*a, **k))
-    d.run()
-    assert d.agent.updates > 0 and seen and all(a[:2] == (3, 9) for a in seen)
-    for name, flag in (("seq_len", "--seq-len"), ("batch_size", "--batch-size")):
-        for bad in (0, -1, 2.5, True):
-            with pytest.raises(ValueError, match=f"{name}.*{flag}.*got"):
-                Distiller(small_config(**{name: bad}), tmp_path / "bad", progress=False)
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    for flag in ("--seq-len", "--batch-size"):
-        args = p.parse_args(["--smoke", flag, "0", "--out", str(tmp_path / "cli")])
-        with pytest.raises(SystemExit, match=f"{flag}.*0"):
-            commands.config_from_args(args)
-    args = p.parse_args(["--smoke", "--seq-len", "10", "--batch-size", "16"])
-    cfg = commands.config_from_args(args)
-    assert (cfg.seq_len, cfg.batch_size) == (10, 16)
+    sample = distill.LabelledReplay.sample
+    monkeypatch.setattr(distill.LabelledReplay, "sample",
+                        lambda self, *a, **k: seen.append(a) or sample(self, *a, **k))
+    run = distil(small_config(train={"seq_len": 9, "batch_size": 3, "steps": 64}), tmp_path,
+                 progress=False)
+    assert run.agent.updates > 0 and seen and all(a[:2] == (3, 9) for a in seen)
+
+
+def test_the_distil_command_records_the_command_that_makes_it(tmp_path):
+    out = tmp_path / "cli"
+    assert main(["distil", "--smoke", "--teachers", TEACHER, "--out", str(out)]) == 0
+    from minid3rqn.io import load_npz
+    meta = load_npz(out / "model.npz")[1]
+    assert meta["command"].startswith(f"python -m minid3rqn distil --teachers {TEACHER} ")
+    assert meta["train_config"]["hidden"] == 16 and meta["train_config"]["depth"] == "pred"
+
+
+# -- growing the LSTM (stage 1 of our recipe) ------------------------------------------------
+def _qnet(width, variant="d3rqn", seed=0, convs=None):
+    from minid3rqn.nets.qnet import QNet, QNetConfig
+    extra = {"convs": convs} if convs else {}
+    return QNet(QNetConfig.for_variant(variant, height=32, width_px=104, n_actions=5,
+                                       width=width, **extra), rng=seed)
+
+
+@pytest.mark.parametrize("variant", ["d3rqn", "ddrqn"])
+def test_a_widened_net_starts_with_the_same_q_values_and_can_learn(variant):
+    from minid3rqn import autograd as ag
+    from minid3rqn.nets.qnet import widen_recurrent_state
+    narrow, wide = _qnet(8, variant, seed=1), _qnet(13, variant, seed=2)
+    wide.load_state_dict(widen_recurrent_state(narrow.state_dict(), wide.state_dict()))
+    obs = np.random.default_rng(3).random((6, 2, 1, 32, 104)).astype(np.float32)
+    q0, _ = narrow(obs)
+    q1, (h, _) = wide(obs)
+    np.testing.assert_allclose(q1.data, q0.data, rtol=1e-5, atol=1e-6)
+    assert np.abs(h.data[:, 8:]).max() > 0          # the new units run ...
+    ag.sum(q1 * q1).backward()                      # ... and their path to the heads opens
+    head = wide.advantage if variant == "d3rqn" else wide.q_head
+    assert np.abs(head.weight.grad[:, 8:]).max() > 0
+
+
+def test_widening_refuses_what_it_cannot_do(tmp_path):
+    from minid3rqn.nets.qnet import widen_recurrent_state
+    wide = _qnet(16)
+    with pytest.raises(ValueError, match="at least as wide.*16.*got 8"):
+        widen_recurrent_state(wide.state_dict(), _qnet(8).state_dict())
+    with pytest.raises(ValueError, match="only a recurrent"):
+        widen_recurrent_state(_qnet(8, "d3qn").state_dict(), _qnet(16, "d3qn").state_dict())
+    other = _qnet(16, convs=[[4, 4, 2], [8, 4, 2], [6, 3, 1]])
+    with pytest.raises(ValueError, match="only the LSTM may be wider|LSTM's input"):
+        widen_recurrent_state(_qnet(8).state_dict(), other.state_dict())
+
+
+def test_distilling_from_a_widened_net(tmp_path):
+    """A run from a widened init_model starts from its Q-values and resumes exactly."""
+    narrow = tmp_path / "narrow.npz"
+    _qnet(8).save(narrow, {"kind": "qnet"})
+    cfg = small_config(init_widen=True, train={"init_model": str(narrow)})
+    from minid3rqn.rl.distill import _widen
+    run = start_run(cfg.train, tmp_path / "first", load_init=_widen)
+    obs = np.random.default_rng(0).random((3, 2, 1, 32, 104)).astype(np.float32)
+    np.testing.assert_allclose(run.agent.online(obs)[0].data, _qnet(8)(obs)[0].data,
+                               rtol=1e-5, atol=1e-6)
+    run_and_resume(cfg, tmp_path, until=48)
+    wide = tmp_path / "wide.npz"
+    _qnet(32).save(wide, {"kind": "qnet"})          # wider than the student's 16 units
+    with pytest.raises(ValueError, match="at least as wide"):
+        distil(small_config(init_widen=True, train={"init_model": str(wide)}),
+               tmp_path / "bad", progress=False)
+
+
+def test_a_run_without_a_bar_prints_one_line_per_checkpoint(tmp_path, capsys):
+    """With no progress bar (reproduce's parallel runs, a log file) a run still says how far
+    it is: its folder, steps of the total and the success so far, at each checkpoint."""
+    distil(small_config(), tmp_path / "quiet_run", progress=False)
+    lines = [l for l in capsys.readouterr().out.splitlines() if l.startswith("quiet_run: ")]
+    assert [l.split()[1] for l in lines] == ["48/96", "96/96"]
+    assert all("success" in l and l.endswith(" s") for l in lines)

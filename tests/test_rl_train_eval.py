@@ -1,6 +1,6 @@
 """Smoke runs: training, resume, evaluation, baselines, the CLI hooks and the shipped model."""
-import argparse
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -8,14 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from minid3rqn.cli import main
 from minid3rqn.io import load_npz
 from minid3rqn.nets.qnet import QNetConfig
-from minid3rqn.rl import commands
+from minid3rqn.rl import models
 from minid3rqn.rl.evaluate import evaluate_policy, wilson_interval
-from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only, encode_depth
+from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
 from minid3rqn.rl.policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy,
                                    StraightPolicy)
-from minid3rqn.rl.train import TrainConfig, Trainer
+from minid3rqn.rl.train import TrainConfig, start_run, train
 from minid3rqn.world import ACTIONS, Camera
 
 pytestmark = pytest.mark.rl
@@ -23,6 +24,12 @@ pytestmark = pytest.mark.rl
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "minid3rqn" / "models" / "d3rqn_basic.npz"
 SHIPPED_DEPTH = ROOT / "minid3rqn" / "models" / "depth_basic.npz"
+SMALL = dict(steps=192, learning_starts=64, n_envs=8, log_every=64, checkpoint_every=96,
+             hidden=16, replay_capacity=2000, eps_decay_steps=200, n_worlds=3)
+
+
+def weights(run) -> list:
+    return [p.data for p in run.agent.online.parameters()]
 
 
 def test_wilson_interval():
@@ -48,60 +55,77 @@ def test_flights_step_contract():
         fl.step(np.full(4, 7))
 
 
-def test_flights_reward_and_depth_functions_resume_exactly():
-    """reward_fn and depth_fn are arguments; a Flights restored from state_dict and
-    meta_state steps on exactly as the original (the corruption's generator too)."""
-    def make():
-        return Flights("basic", 3, seed=2, config=FlightsConfig(n_worlds=2),
-                       reward_fn=lambda d, collided: np.where(collided, -5.0, 2.0 * d),
-                       depth_fn=lambda d, rng: d * rng.uniform(0.8, 1.2, (len(d), 1, 1)))
-    a, b = make(), make()
-    a.reset(), b.reset()
-    for _ in range(4):
-        res = a.step(np.array([0, 3, 4]))
-    np.testing.assert_allclose(res.rewards, np.where(res.terminated, -5.0, 2.0 * res.d_nearest),
-                               rtol=1e-6)
-    b.load_state_dict({k: np.copy(v) for k, v in a.state_dict().items()}, a.meta_state())
-    for _ in range(4):
-        ra, rb = a.step(np.array([1, 2, 0])), b.step(np.array([1, 2, 0]))
-        np.testing.assert_array_equal(ra.frames, rb.frames)
-        np.testing.assert_array_equal(ra.rewards, rb.rewards)
-    with pytest.raises(TypeError, match="reward_fn must be callable"):
-        Flights("basic", 2, config=FlightsConfig(n_worlds=1), reward_fn=1.0)
-    with pytest.raises(TypeError, match="depth_fn must be callable"):
-        Flights("basic", 2, config=FlightsConfig(n_worlds=1), depth_fn="noise")
-
-
 def test_training_smoke_and_exact_resume(tmp_path):
-    cfg = TrainConfig(total_steps=192, learning_starts=64, n_envs=8, log_every=64,
-                      checkpoint_every=96, hidden=16, replay_capacity=2000, eps_decay_steps=200,
-                      flights=FlightsConfig(n_worlds=3))
-    a = Trainer(cfg, tmp_path / "a", progress=False)
-    a.run(until=96)
-    a.save_checkpoint()
-    b = Trainer.resume(tmp_path / "a", progress=False)
-    a.run()
-    b.run()
-    assert a.agent.updates > 0 and a.steps == 192
-    for p, q in zip(a.agent.online.parameters(), b.agent.online.parameters()):
-        np.testing.assert_array_equal(p.data, q.data)
+    """A run cut off at 96 transitions and resumed from its checkpoint is the run made in
+    one go, weight for weight; and the same seed gives the same run."""
+    cfg = TrainConfig(**SMALL)
+    half = train(TrainConfig(**{**SMALL, "steps": 96}), tmp_path / "a", progress=False)
+    assert half.steps == 96 and (tmp_path / "a" / "checkpoint.npz").exists()
+    b = train(cfg, tmp_path / "a", progress=False, resume=True)
+    a = train(cfg, tmp_path / "c", progress=False)
+    assert a.agent.updates > 0 and a.steps == 192 and b.agent.updates == a.agent.updates
+    for p, q in zip(weights(a), weights(b)):
+        np.testing.assert_array_equal(p, q)
     assert (tmp_path / "a" / "curve.csv").exists() and (tmp_path / "a" / "curve.png").exists()
-    # the same seed gives the same run
-    c = Trainer(cfg, tmp_path / "c", progress=False)
-    c.run()
-    for p, q in zip(a.agent.online.parameters(), c.agent.online.parameters()):
-        np.testing.assert_array_equal(p.data, q.data)
+    assert a.curve == [{**row, "seconds": r["seconds"]} for row, r in zip(b.curve, a.curve)]
+    with pytest.raises(ValueError, match=r"other settings \(hidden\)"):
+        train(TrainConfig(**{**SMALL, "hidden": 8}), tmp_path / "a", progress=False,
+              resume=True)
+
+
+def test_training_config_is_checked_and_names_the_setting():
+    from minid3rqn.config import ConfigError
+    for bad, name in (({"steps": 0}, "steps"), ({"batch_size": 0}, "batch_size"),
+                      ({"seq_len": 0}, "seq_len"), ({"variant": "dqn"}, "variant"),
+                      ({"conv_channels": [6, 5]}, "conv_channels"),
+                      ({"hfov_deg": 180}, "hfov_deg"), ({"actions": [[2, "x"]]}, "actions")):
+        with pytest.raises(ConfigError, match=name):
+            TrainConfig(**bad)
+    assert TrainConfig().window() == 5 and TrainConfig(variant="d3qn").window() == 1
+    assert TrainConfig(variant="d3qn", seq_len=3).window() == 3
 
 
 def test_stacked_nonrecurrent_training_smoke(tmp_path):
-    cfg = TrainConfig(variant="ddqn", stack=5, seq_len=1, total_steps=192, learning_starts=64,
-                      n_envs=8, log_every=64, checkpoint_every=1000, hidden=16,
-                      replay_capacity=2000, flights=FlightsConfig(n_worlds=2))
-    tr = Trainer(cfg, tmp_path, progress=False)
-    tr.run()
-    pol = QNetPolicy(tr.agent.online)
+    cfg = TrainConfig(variant="ddqn", stack=5, **{**SMALL, "checkpoint_every": 1000,
+                                                  "n_worlds": 2})
+    run = train(cfg, tmp_path, progress=False)
+    pol = QNetPolicy(run.agent.online)
     res = evaluate_policy(pol, "basic", n_flights=8, chunk=8, max_steps=5, progress=False)
     assert 0 <= res.rate <= 1 and res.flights == 8
+
+
+def test_a_students_actions_reward_and_camera_are_parameters(tmp_path):
+    """The action table and the camera travel with the model file (a 7-action net flies
+    with its 7 actions); the reward, the depth change and the TD target reach training."""
+    table = np.concatenate([ACTIONS, [[1.0, 0.3], [1.0, -0.3]]]).tolist()
+    seen = {"reward": 0, "depth": 0, "target": 0}
+
+    def reward(d, collided, yaw_rate=0.0):
+        seen["reward"] += 1
+        return np.where(collided, -1.0, 1.0)
+
+    def depth_fn(depth, rng):
+        seen["depth"] += 1
+        return depth
+
+    def target(qo, qt, r, term, gamma):
+        seen["target"] += 1
+        return r + gamma * (1 - term) * qt.max(axis=-1)
+    cfg = TrainConfig(actions=table, hfov_deg=60.0, **{**SMALL, "steps": 128})
+    run = train(cfg, tmp_path, reward_fn=reward, depth_fn=depth_fn, td_target=target,
+                progress=False)
+    assert all(seen.values()), seen
+    assert run.flights.n_actions == 7 and run.flights.camera.hfov_deg == 60.0
+    meta = QNetPolicy.load(tmp_path / "model.npz").meta
+    np.testing.assert_array_equal(models.trained_actions(meta), table)
+    assert models.trained_camera(meta) == Camera(hfov_deg=60.0)
+    pol = models.load_policy(str(tmp_path / "model.npz"))
+    res = evaluate_policy(pol, "basic", n_flights=4, chunk=4, max_steps=3, progress=False)
+    assert res.flights == 4
+    shipped = models.load_policy(str(SHIPPED))
+    with pytest.raises(ValueError, match="another action table or camera"):
+        models.actions_and_camera(pol, shipped)
+    np.testing.assert_array_equal(models.actions_and_camera(shipped)[0], ACTIONS)
 
 
 def test_evaluation_smoke_baselines():
@@ -164,14 +188,9 @@ def test_evaluation_flies_the_flights_the_factory_makes():
     assert flat.mean_steps != gt.mean_steps
 
 
-def test_training_world_pool_is_set_and_checked():
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    assert commands.config_from_args(p.parse_args([])).flights.n_worlds == 32
-    cfg = commands.config_from_args(p.parse_args(["--worlds", "5"]))
-    assert cfg.flights.n_worlds == 5
-    fl = Flights("basic", 3, seed=0, config=cfg.flights)
-    assert len(fl.worlds) == 5 and len(set(fl.world_seeds.tolist())) == 5
+def test_training_world_pool_is_set_and_checked(tmp_path):
+    run = start_run(TrainConfig(n_worlds=5, n_envs=3), tmp_path)
+    assert len(run.flights.worlds) == 5 and len(set(run.flights.world_seeds.tolist())) == 5
     for bad in (0, -2, 2.5, True):
         with pytest.raises(ValueError, match="n_worlds"):
             Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=bad))
@@ -214,56 +233,81 @@ def test_oracle_flies_the_channel():
 
 
 def test_cli_smoke(tmp_path, capsys):
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    args = p.parse_args(["--smoke", "--quiet", "--out", str(tmp_path / "run")])
-    assert commands.run_train_agent(args) == 0
+    assert main(["train-agent", "--smoke", "--out", str(tmp_path / "run")]) == 0
     model = tmp_path / "run" / "model.npz"
-    assert model.exists()
     _, meta = load_npz(model)              # the machine that trained it (io.machine)
     assert set(meta["machine"]) == {"numpy", "blas_core", "python", "platform"}
-    p = argparse.ArgumentParser()
-    commands.add_arguments_evaluate(p)
-    args = p.parse_args([str(model), "random", "--flights", "4", "--steps", "10", "--quiet",
-                         "--json", str(tmp_path / "r.jsonl")])
-    assert commands.run_evaluate(args) == 0
+    assert meta["command"].startswith("python -m minid3rqn train-agent --steps 128 ")
+    assert meta["command"].endswith(f"--out {tmp_path / 'run'}")
+    assert main(["evaluate", str(model), "random", "--flights", "4", "--steps", "10",
+                 "--json", str(tmp_path / "r.jsonl")]) == 0
     assert len((tmp_path / "r.jsonl").read_text().splitlines()) == 2
     printed = capsys.readouterr().out.splitlines()         # each line names what flew
     assert printed[-2].endswith(f"  {model} (gt depth)") and printed[-1].startswith("Random")
+    record = json.loads((tmp_path / "r.jsonl").read_text().splitlines()[0])
+    assert record["command"] == f"python -m minid3rqn evaluate {model} --flights 4 --steps 10"
     if SHIPPED_DEPTH.exists():                        # predicted depth, flip-averaged
-        args = p.parse_args([str(model), "--flights", "2", "--steps", "3", "--quiet",
-                             "--depth", "pred", "--flip-tta", "--json",
-                             str(tmp_path / "f.jsonl")])
-        assert commands.run_evaluate(args) == 0
+        assert main([str(x) for x in [
+            "evaluate", model, "--flights", 2, "--steps", 3, "--depth", "pred", "--flip-tta",
+            "--json", tmp_path / "f.jsonl"]]) == 0
         assert json.loads((tmp_path / "f.jsonl").read_text())["depth_flip"] is True
-        # the flag reaches the estimator that flies (it once did not: the JSON said
-        # depth_flip while the frames were not flipped)
-        assert commands._estimator_for("pred", str(SHIPPED_DEPTH), "basic", True).flip
-        assert not commands._estimator_for("pred", str(SHIPPED_DEPTH), "basic", False).flip
-    ens = commands.make_policy(f"{model}+{model}")          # an ensemble spec
+        # the flag reaches the estimator that flies
+        assert models.depth_estimator_for("pred", str(SHIPPED_DEPTH), "basic", True).flip
+        assert not models.depth_estimator_for("pred", str(SHIPPED_DEPTH), "basic").flip
+    ens = models.load_policy(f"{model}+{model}")          # an ensemble spec
     assert ens.name.endswith("-ens2") and len(ens.members) == 2
-    one = commands.make_policy(str(model), mirror=True)     # a net and its mirror image
-    assert one.name.endswith("-mirror") and [m.mirror for m in one.members] == [False, True]
-    two = commands.make_policy(f"{model}+{model}", mirror=True)
-    assert two.name.endswith("-ens2-mirror") and [m.mirror for m in two.members] == \
-        [False, False, True, True]
-    assert commands.make_policy("reactive", mirror=True).name == "Reactive"
-    args = p.parse_args([str(model), "--mirror", "--flights", "2", "--steps", "3", "--quiet",
-                         "--json", str(tmp_path / "m.jsonl")])
-    assert commands.run_evaluate(args) == 0
+    one = models.load_policy(str(model), mirror=True)     # a net and its mirror image
+    assert one.name.endswith("-mirror") and [type(m).__name__ for m in one.members] == \
+        ["QNetPolicy", "MirroredPolicy"]
+    two = models.load_policy(f"{model}+{model}", mirror=True)
+    assert two.name.endswith("-ens2-mirror") and len(two.members) == 4
+    assert models.load_policy("reactive", mirror=True).name == "Reactive"
+    assert main(["evaluate", str(model), "--mirror", "--flights", "2", "--steps", "3",
+                 "--json", str(tmp_path / "m.jsonl")]) == 0
     assert json.loads((tmp_path / "m.jsonl").read_text())["mirror"] is True
     for bad in (f"{model}+random", f"{model}+"):
-        with pytest.raises(SystemExit, match="ensemble joins Q-net"):
-            commands.make_policy(bad)
+        with pytest.raises(ValueError, match="not a Q-net file"):
+            models.load_policy(bad)
+    capsys.readouterr()
+    assert main(["evaluate", f"{model}+nope.npz"]) == 2
+    assert "'nope.npz' is not a Q-net file" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("name", sorted(commands.SHIPPED_QNETS))
+@pytest.mark.parametrize("argv, message", [
+    (["train-agent", "--steps", "0"], "--steps: expected a number >= 1; got 0"),
+    (["train-agent", "--set", "conv_channels=6,5"], "--set conv_channels: expected three"),
+    (["train-agent", "--set", "conv_channels=6,x,3"], "--set conv_channels: expected numbers"),
+    (["train-agent", "--lr", "-1"], "--lr: expected a number > 0; got -1.0"),
+    (["train-agent", "--depth", "pred", "--depth-model", "nope.npz"], "--depth-model: "),
+    (["distil", "--teachers", "nope.npz"], "--teachers: 'nope.npz' is not a file"),
+    (["evaluate", "straight", "--flights", "0"], "--flights: expected a number >= 1"),
+    (["fly", "--model", "papr"], "'papr' not found.*expected a shipped name, paper or distil"),
+    (["reproduce", "--workers", "0"], "--workers: expected a number >= 1; got 0"),
+    (["reproduce", "--students", "2"], "--students 2: only for --recipe distil"),
+])
+def test_bad_inputs_are_one_line_naming_the_option(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and re.search(message, err), err
+
+
+def test_conv_channels_widen_the_torso(tmp_path):
+    assert main(["train-agent", "--smoke", "--set", "conv_channels=6,5,3",
+                 "--out", str(tmp_path / "run")]) == 0
+    pol = QNetPolicy.load(tmp_path / "run" / "model.npz")
+    default = QNetConfig().convs
+    assert [c[0] for c in pol.qnet.config.convs] == [6, 5, 3]
+    assert [c[1:] for c in pol.qnet.config.convs] == [c[1:] for c in default]
+    assert "--set conv_channels=6,5,3" in pol.meta["command"]
+
+
+@pytest.mark.parametrize("name", sorted(models.SHIPPED_QNETS))
 def test_shipped_model_loads_and_beats_random(name):
     """Each shipped Q-net (fly --model NAME) loads with its command and seed recorded, a
     JSON of its evaluations beside it, and flies far better than Random."""
-    path = commands.SHIPPED_QNETS[name]
+    path = models.SHIPPED_QNETS[name]
     assert path.is_file(), f"shipped Q-net {name!r} missing: {path}"
-    assert commands.recorded_result(path, "basic", "pred") is not None
+    assert models.recorded_result(path, "basic", "pred") is not None
     # every recorded evaluation gives both 95% intervals, the one by world no narrower
     for row in json.loads(path.with_suffix(".json").read_text())["evaluations"]:
         lo, hi = row["ci95"]
@@ -290,36 +334,24 @@ def test_examples_smoke(script, tmp_path):
 @pytest.mark.skipif(not SHIPPED.exists(), reason="no shipped Q-net yet")
 def test_fly_main_job_smoke(tmp_path, capsys):
     """The README's first command, small: flies the shipped models, writes the GIF, prints
-    the rate and the recorded result for the scenario from the model's JSON."""
-    p = argparse.ArgumentParser()
-    commands.add_arguments_fly(p)
+    the rate; the shipped nets by name; a missing member is named."""
+    from minid3rqn.rl.fly import fly
     gif = tmp_path / "fly.gif"
-    args = p.parse_args(["--flights", "2", "--steps", "4", "--seed", "1", "--gif", str(gif)])
-    assert commands.run_fly(args) == 0
+    est = models.depth_estimator_for("pred") if SHIPPED_DEPTH.exists() else None
+    out = fly(str(SHIPPED), est, "basic", 1, 2, gif, max_steps=4)
     assert gif.is_file() and gif.stat().st_size > 0
-    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["flights"] == 2 and 0 <= out["success_rate"] <= 1
     assert 1 <= out["worlds"] <= 2                  # and by world when there are two
     assert (out["ci95_by_world"] is None) == (out["worlds"] < 2)
-    # an ensemble flies too (the shipped net twice), and a missing member is named
-    args = p.parse_args(["--flights", "2", "--steps", "2", "--seed", "1", "--depth", "gt",
-                         "--gif", str(gif), "--model", f"{SHIPPED}+{SHIPPED}"])
-    assert commands.run_fly(args) == 0
-    args = p.parse_args(["--flights", "2", "--steps", "2", "--seed", "1", "--depth", "gt",
-                         "--gif", str(gif), "--mirror"])          # the net and its mirror
-    assert commands.run_fly(args) == 0
-    args = p.parse_args(["--model", f"{SHIPPED}+{tmp_path / 'nope.npz'}"])
-    with pytest.raises(SystemExit, match="nope.npz"):
-        commands.run_fly(args)
-    # the shipped nets by name: each flies; an unknown name lists the names
-    for name in commands.SHIPPED_QNETS:
-        args = p.parse_args(["--flights", "2", "--steps", "2", "--seed", "1", "--depth", "gt",
-                             "--gif", str(gif), "--model", name])
-        assert commands.run_fly(args) == 0
-    args = p.parse_args(["--model", "papr"])
-    with pytest.raises(SystemExit, match="'papr' not found.*expected a shipped name, "
-                       + " or ".join(commands.SHIPPED_QNETS)):
-        commands.run_fly(args)
+    # an ensemble flies too (the shipped net twice), and the net with its mirror image
+    assert fly(f"{SHIPPED}+{SHIPPED}", None, "basic", 1, 2, gif, max_steps=2)["flights"] == 2
+    assert fly(str(SHIPPED), None, "basic", 1, 2, gif, max_steps=2, mirror=True)["flights"] == 2
+    for name in models.SHIPPED_QNETS:
+        assert main(["fly", "--flights", "1", "--seed", "1", "--depth", "gt",
+                     "--gif", str(gif), "--model", name]) == 0
+    capsys.readouterr()
+    assert main(["fly", "--model", f"{SHIPPED}+{tmp_path / 'nope.npz'}"]) == 2
+    assert "nope.npz" in capsys.readouterr().err
 
 
 def test_reactive_rule_reads_the_rows_around_the_camera_horizon():
@@ -335,9 +367,9 @@ def test_reactive_rule_reads_the_rows_around_the_camera_horizon():
     assert middle.profile(depth)[0].min() == 8.0
 
 
-def test_the_camera_must_match_the_depth_model_and_the_q_nets(tmp_path):
-    """A raised horizon (Camera(horizon_row=...)) reaches the flights' camera; a depth
-    model or a Q-net trained with another camera is refused by name."""
+def test_the_camera_must_match_the_depth_model():
+    """A raised horizon (Camera.horizon_row) reaches the flights' frames; a depth model
+    trained with another camera is refused by name."""
     fl = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2),
                  camera=Camera(horizon_row=4))
     assert fl.camera.cy == 4.0
@@ -354,43 +386,6 @@ def test_the_camera_must_match_the_depth_model_and_the_q_nets(tmp_path):
     with pytest.raises(ValueError, match="trained on frames with the horizon at row 15.5"):
         Flights("basic", 2, seed=0, depth="pred", depth_estimator=Estimator(),
                 config=FlightsConfig(n_worlds=2), camera=Camera(horizon_row=4))
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    args = p.parse_args(["--smoke", "--quiet", "--horizon-row", "4",
-                         "--out", str(tmp_path / "run")])
-    assert commands.run_train_agent(args) == 0
-    model = tmp_path / "run" / "model.npz"
-    assert commands.model_horizon(QNetPolicy.load(model).meta) == 4.0
-    p = argparse.ArgumentParser()
-    commands.add_arguments_evaluate(p)
-    ok = p.parse_args([str(model), "--flights", "2", "--steps", "2", "--quiet",
-                       "--json", str(tmp_path / "r.jsonl")])
-    assert commands.run_evaluate(ok) == 0                  # the net's own horizon, found
-    assert json.loads((tmp_path / "r.jsonl").read_text())["horizon_row"] == 4.0
-    bad = p.parse_args([str(model), "--flights", "2", "--steps", "2", "--quiet",
-                        "--horizon-row", "15.5"])
-    with pytest.raises(SystemExit, match="trained with the horizon at row 4"):
-        commands.run_evaluate(bad)
-    if SHIPPED_DEPTH.exists():                            # the shipped DispNet: the middle row
-        bad = p.parse_args([str(model), "--flights", "2", "--steps", "2", "--quiet",
-                            "--depth", "pred"])
-        with pytest.raises(SystemExit, match="trained with the horizon at row 4"):
-            commands.run_evaluate(bad)
-
-
-def test_frames_are_depth_over_max_depth():
-    """The Q-net reads the paper's depth maps: metres / 10 m, clipped to [0, 1]; at reset,
-    after a step and for a privileged teacher alike."""
-    d = np.array([0.0, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 30.0], np.float32)
-    np.testing.assert_allclose(encode_depth(d), np.minimum(d, 10) / 10, atol=1e-7)
-    assert encode_depth(d).dtype == np.float32
-    np.testing.assert_allclose(encode_depth(d, 5.0), np.minimum(d, 5) / 5, atol=1e-7)
-    fl = Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=2))
-    frames = fl.reset()
-    np.testing.assert_array_equal(frames, encode_depth(fl.last_depth))
-    np.testing.assert_array_equal(fl.gt_frames(), frames)
-    res = fl.step(np.zeros(3, np.int64))
-    np.testing.assert_array_equal(res.final_frames, encode_depth(fl.last_depth))
 
 
 def test_evaluate_warns_about_a_snapshot_of_an_unfinished_run():
@@ -400,10 +395,10 @@ def test_evaluate_warns_about_a_snapshot_of_an_unfinished_run():
         name = "D3RQN"
 
         def __init__(self, steps, total):
-            self.meta = {"steps": steps, "train_config": {"total_steps": total}}
-    assert commands.unfinished_warning(Net(240000, 240000)) is None
-    assert commands.unfinished_warning(StraightPolicy()) is None
-    msg = commands.unfinished_warning(Net(160000, 240000))
+            self.meta = {"steps": steps, "train_config": {"steps": total}}
+    assert models.unfinished_warning(Net(240000, 240000)) is None
+    assert models.unfinished_warning(StraightPolicy()) is None
+    msg = models.unfinished_warning(Net(160000, 240000))
     assert "snapshot at 160000 of its run's 240000" in msg
 
 
@@ -421,35 +416,18 @@ def test_recorded_result_picks_the_largest_matching_evaluation(tmp_path):
              "ci95": [0.8, 0.9], "mirror": True, "flip_tta": True}]
     model.with_suffix(".json").write_text(json.dumps({"evaluations": rows}))
     # a plain flight is never shown a result flown with the mirror image or the flip
-    assert commands.recorded_result(model, "basic", "pred")["rate"] == 0.7
-    assert commands.recorded_result(model, "basic", "pred", mirror=True)["rate"] == 0.8
-    assert commands.recorded_result(model, "basic", "pred", mirror=True,
+    assert models.recorded_result(model, "basic", "pred")["rate"] == 0.7
+    assert models.recorded_result(model, "basic", "pred", mirror=True)["rate"] == 0.8
+    assert models.recorded_result(model, "basic", "pred", mirror=True,
                                     flip_tta=True)["rate"] == 0.85
-    assert commands.recorded_result(model, "basic", "pred", flip_tta=True) is None
-    assert commands.recorded_result(model, "corners", "pred") is None
-    assert commands.recorded_result(tmp_path / "none.npz", "basic", "gt") is None
+    assert models.recorded_result(model, "basic", "pred", flip_tta=True) is None
+    assert models.recorded_result(model, "corners", "pred") is None
+    assert models.recorded_result(tmp_path / "none.npz", "basic", "gt") is None
 
 
 def test_recorded_text_gives_the_interval_by_world_when_the_row_has_it():
     row = {"rate": 0.7, "ci95": [0.68, 0.72], "flights": 2000, "seed": 1}
-    old = commands.recorded_text(row)
+    old = models.recorded_text(row)
     assert "by flight" in old and "by world" not in old and "seed 1" in old
-    new = commands.recorded_text(dict(row, ci95_by_world=[0.65, 0.75], worlds=128))
+    new = models.recorded_text(dict(row, ci95_by_world=[0.65, 0.75], worlds=128))
     assert "[0.650, 0.750] by world (128 worlds)" in new and "[0.680, 0.720] by flight" in new
-
-
-def test_conv_channels_widen_the_torso_and_are_checked(tmp_path):
-    p = argparse.ArgumentParser()
-    commands.add_arguments_train_agent(p)
-    args = p.parse_args(["--smoke", "--quiet", "--conv-channels", "6,5,3",
-                         "--out", str(tmp_path / "run")])
-    assert commands.run_train_agent(args) == 0
-    pol = QNetPolicy.load(tmp_path / "run" / "model.npz")
-    default = QNetConfig().convs
-    assert [c[0] for c in pol.qnet.config.convs] == [6, 5, 3]
-    assert [c[1:] for c in pol.qnet.config.convs] == [c[1:] for c in default]
-    for bad in ("6,5", "6,x,3", "6,0,3"):
-        args = p.parse_args(["--smoke", "--quiet", "--conv-channels", bad,
-                             "--out", str(tmp_path / "bad")])
-        with pytest.raises(SystemExit, match="--conv-channels"):
-            commands.run_train_agent(args)

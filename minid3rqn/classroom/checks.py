@@ -795,8 +795,7 @@ def check_depth_errors(path) -> Report:
                        "network can learn to undo, rather than a random error")
 
         # it reaches the training flights
-        from ..rl.flights import depth_only
-        from ..rl.flights import Flights
+        from ..rl.flights import Flights, depth_only
         fl = Flights("basic", 4, seed=0, depth_fn=fn, config=_small_pool())
         frames = _call(r, path, "the training flights' reset, with your corrupt", fl.reset)
         _call(r, path, "the training flights' step, with your corrupt", fl.step,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..config import UsageError
 from .registry import EXERCISES
 
 
@@ -33,13 +34,13 @@ def run_check(args) -> int:
     from .runner import solution_path
     if args.exercise.lower() == "all":
         if args.file:
-            raise SystemExit("check all: --file needs one exercise")
+            raise UsageError("--file: checks one exercise, not 'all'")
         chosen = list(EXERCISES.values())
     else:
         try:
             chosen = [find(args.exercise)]
         except ValueError as e:
-            raise SystemExit(f"check: {e}")
+            raise UsageError(str(e)) from None
     failed = 0
     for ex in chosen:
         path = Path(args.file) if args.file else (solution_path(ex) if args.solutions
@@ -55,7 +56,7 @@ def run_check(args) -> int:
 
 # -- exercise ------------------------------------------------------------------------------
 def add_arguments_exercise(p: argparse.ArgumentParser) -> None:
-    from .runner import AGENT_BUDGETS, OUT
+    from .runner import AGENT_BUDGETS
     p.add_argument("exercise", help=f"which exercise: {_names()}")
     p.add_argument("--file", default=None,
                    help="your file (default: exercises/<the exercise's file>.py)")
@@ -66,23 +67,17 @@ def add_arguments_exercise(p: argparse.ArgumentParser) -> None:
                         "tiny: a 2-minute first look; smoke: seconds, for tests")
     p.add_argument("--variant", default=None, choices=["ddqn", "d3qn", "ddrqn", "d3rqn"],
                    help="Q-network (default d3rqn; the fov exercise compares d3rqn and d3qn)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--tag", default=None,
-                   help="name of this run in the results table (default: from the change, "
-                        "e.g. 'yours', 'paper', 'd3qn-fov60')")
-    p.add_argument("--flights", type=int, default=None, help="test flights (default per budget)")
-    p.add_argument("--out", default=str(OUT), help="runs folder (default runs/classroom)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def run_exercise(args) -> int:
+    import sys
     from .runner import run_exercise as run
     try:
         result = run(args.exercise, file=args.file, baseline=args.baseline,
-                     budget=args.budget, variant=args.variant, seed=args.seed, out=args.out,
-                     flights=args.flights, progress=not args.quiet, tag=args.tag)
+                     budget=args.budget, variant=args.variant,
+                     progress=sys.stderr.isatty())
     except ValueError as e:
-        raise SystemExit(f"exercise: {e}")
+        raise UsageError(str(e)) from None
     return 0 if result.get("passed", True) else 1
 
 

@@ -18,14 +18,12 @@ seed are comparable.
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from . import adapters
 from .checks import _targets_reference
 from .loader import REPO_ROOT, default_path, load_student_module
 from .registry import EXERCISES, Exercise, find
@@ -41,15 +39,15 @@ EVAL_SEED = 12345
 # random pilot's ~11), success after ~3,000. "tiny" is a 2-minute look at the
 # mechanics (too short to learn much); "smoke" is for tests.
 AGENT_BUDGETS = {
-    "smoke": dict(train=dict(total_steps=256, learning_starts=64, n_envs=8, hidden=16,
+    "smoke": dict(train=dict(steps=256, learning_starts=64, n_envs=8, hidden=16,
                              replay_capacity=4_000, eps_decay_steps=200, log_every=64,
                              updates_per_step=1.0),
                   flights=16, minutes=0.2, n_worlds=4),
-    "tiny": dict(train=dict(total_steps=12_000, learning_starts=2_000, n_envs=16, hidden=64,
+    "tiny": dict(train=dict(steps=12_000, learning_starts=2_000, n_envs=16, hidden=64,
                             replay_capacity=12_000, eps_decay_steps=8_000, log_every=2_000,
                             updates_per_step=1.5),
                  flights=100, minutes=2),
-    "small": dict(train=dict(total_steps=40_000, learning_starts=2_000, n_envs=16, hidden=64,
+    "small": dict(train=dict(steps=40_000, learning_starts=2_000, n_envs=16, hidden=64,
                              replay_capacity=40_000, eps_decay_steps=25_000, log_every=4_000,
                              updates_per_step=1.5),
                   flights=200, minutes=7),
@@ -64,20 +62,19 @@ DEPTH_BUDGETS = {
 # -- what a student's file means for training ------------------------------------------
 def agent_settings(ex: Exercise, module, variant: str | None) -> dict:
     """The training changes an agent exercise asks for; ``module`` None = the paper's."""
-    s = {"variant": variant or "d3rqn", "seq_len": 5, "actions": None, "camera": None,
-         "reward_fn": None, "td_target": None, "depth_fn": None, "eval_pred": False}
+    s = {"exercise": ex.name, "variant": variant or "d3rqn", "seq_len": 5, "actions": None,
+         "hfov_deg": 90.0, "reward_fn": None, "td_target": None, "depth_fn": None,
+         "eval_pred": False}
     base = module is None
     if ex.name == "reward":
         s["reward_fn"] = None if base else module.reward
         s["tag"] = "paper" if base else "yours"
     elif ex.name == "actions":
-        s["actions"] = None if base else np.asarray(module.ACTIONS, dtype=np.float64)
+        s["actions"] = None if base else np.asarray(module.ACTIONS, dtype=np.float64).tolist()
         s["tag"] = "paper" if base else f"yours-{len(s['actions'])}actions"
     elif ex.name == "fov":
-        from ..world import Camera
-        fov = 90.0 if base else float(module.HFOV_DEG)
-        s["camera"] = None if base else Camera(32, 104, fov)
-        s["tag"] = f"{s['variant']}-fov{fov:g}"
+        s["hfov_deg"] = 90.0 if base else float(module.HFOV_DEG)
+        s["tag"] = f"{s['variant']}-fov{s['hfov_deg']:g}"
     elif ex.name == "memory":
         s["seq_len"] = 5 if base else int(module.SEQ_LEN)
         s["tag"] = f"{s['variant']}-seq{s['seq_len']}"
@@ -143,72 +140,74 @@ def _check_first(ex: Exercise, path, report_out: bool = True) -> tuple[Report, o
 
 
 # -- agent exercises -------------------------------------------------------------------
+def _agent_config(s: dict, b: dict, seed: int):
+    """The TrainConfig of an agent exercise: the budget ``b``, the student's change ``s``
+    (its action table and field of view are recorded in the model file)."""
+    from ..rl.train import TrainConfig
+    train = {**b["train"], "n_worlds": b.get("n_worlds", 32)}
+    seq_len = s["seq_len"]
+    if s["variant"] in ("ddqn", "d3qn") and s["exercise"] != "memory":
+        seq_len = 1
+    return TrainConfig(variant=s["variant"], seq_len=seq_len, seed=seed,
+                       checkpoint_every=10 ** 9, actions=s["actions"],
+                       hfov_deg=s["hfov_deg"], **train)
+
+
 def run_agent_exercise(ex: Exercise, module, budget: str = "small", variant: str | None = None,
                        seed: int = 0, out=OUT, flights: int | None = None,
                        progress: bool = True, tag: str | None = None) -> dict:
     from ..rl.evaluate import evaluate_policy
+    from ..rl.flights import FlightsConfig
+    from ..rl.models import trained_actions, trained_camera
     from ..rl.policies import QNetPolicy
-    from ..rl.train import Trainer, TrainConfig
-    from ..world import ACTIONS
+    from ..rl.train import train
 
     b = AGENT_BUDGETS[budget]
     s = agent_settings(ex, module, variant)
     tag = (tag or s["tag"]) + (f"-s{seed}" if seed else "") + \
         ("" if budget == "small" else f"-{budget}")
     run_dir = Path(out) / ex.name / tag
-    cfg = TrainConfig(variant=s["variant"], seq_len=s["seq_len"], seed=seed,
-                      checkpoint_every=10 ** 9, **b["train"])
-    eval_flights_cfg = None
-    if "n_worlds" in b:                       # fewer scenes to build: quicker smoke runs
-        from ..rl.flights import FlightsConfig
-        cfg.flights = FlightsConfig(n_worlds=b["n_worlds"])
-        eval_flights_cfg = FlightsConfig(n_worlds=b["n_worlds"])
-    if cfg.variant in ("ddqn", "d3qn") and ex.name != "memory":
-        cfg.seq_len = 1
-    actions = ACTIONS if s["actions"] is None else s["actions"]
+    cfg = _agent_config(s, b, seed)
+    eval_flights_cfg = FlightsConfig(n_worlds=b["n_worlds"]) if "n_worlds" in b else None
     n_flights = flights or b["flights"]
     # exercise 8 also flies the test flights on the DispNet's depth: load it before
     # training, so that a missing depth model stops the run now, not minutes later
     est, est_path = _shipped_depth_estimator(cfg.scenario) if s["eval_pred"] else (None, None)
-    print(f"exercise {ex.name} [{tag}]: training {cfg.variant} for {cfg.total_steps} transitions "
+    print(f"exercise {ex.name} [{tag}]: training {cfg.variant} for {cfg.steps} transitions "
           f"(budget '{budget}', about {b['minutes']} min on a 2-core laptop), then "
           f"{n_flights} test flights" + (" on GT depth and on predicted depth" if est else "")
           + f" -> {run_dir}", flush=True)
     t0 = time.time()
     # training: the student's change, including the depth corruption (exercise 8) ...
-    with adapters.classroom_flights(actions=s["actions"], camera=s["camera"],
-                                    reward_fn=s["reward_fn"], depth_fn=s["depth_fn"]), \
-            adapters.td_target(s["td_target"]):
-        trainer = Trainer(cfg, run_dir, progress=progress)
-        trainer.run()
-        t_train = time.time() - t0
+    run = train(cfg, run_dir, reward_fn=s["reward_fn"], depth_fn=s["depth_fn"],
+                td_target=s["td_target"], progress=progress)
+    t_train = time.time() - t0
+    meta = {"train_config": {"actions": cfg.actions, "hfov_deg": cfg.hfov_deg}}
+    actions, camera = trained_actions(meta), trained_camera(meta)
+    run.save_model(run_dir / "model.npz", {"exercise": ex.name, "tag": tag})
+    # the checkpoint holds the whole replay (~140 MB at budget small); an exercise run is
+    # never resumed, so keep only the model
+    (run_dir / "checkpoint.npz").unlink(missing_ok=True)
     # ... testing: the same actions and camera, but never a corruption of the depth
-    with adapters.classroom_flights(actions=s["actions"], camera=s["camera"],
-                                    reward_fn=s["reward_fn"]):
-        trainer.save_model(run_dir / "model.npz", {"exercise": ex.name, "tag": tag})
-        # the trainer's checkpoint holds the whole replay (~140 MB at budget small); an
-        # exercise run is never resumed, so keep only the model
-        (run_dir / "checkpoint.npz").unlink(missing_ok=True)
-        policy = CountingPolicy(QNetPolicy(trainer.agent.online, name=tag), len(actions))
-        res = evaluate_policy(policy, cfg.scenario, n_flights, EVAL_SEED,
-                              flights_config=eval_flights_cfg, progress=progress)
-        pred = None
-        if est is not None:           # the same test flights, on the DispNet's depth
-            pred = evaluate_policy(QNetPolicy(trainer.agent.online, name=f"{tag} pred"),
-                                   cfg.scenario, n_flights, EVAL_SEED, depth="pred",
-                                   depth_estimator=est, flights_config=eval_flights_cfg,
-                                   progress=progress)
-        gif = _flight_gif(run_dir, actions, flights=8 if budget != "smoke" else 2)
+    policy = CountingPolicy(QNetPolicy(run.agent.online, name=tag), len(actions))
+    res = evaluate_policy(policy, cfg.scenario, n_flights, EVAL_SEED, actions=actions,
+                          camera=camera, flights_config=eval_flights_cfg, progress=progress)
+    pred = None
+    if est is not None:           # the same test flights, on the DispNet's depth
+        pred = evaluate_policy(QNetPolicy(run.agent.online, name=f"{tag} pred"),
+                               cfg.scenario, n_flights, EVAL_SEED, depth="pred",
+                               depth_estimator=est, flights_config=eval_flights_cfg,
+                               actions=actions, camera=camera, progress=progress)
+    gif = _flight_gif(run_dir, flights=8 if budget != "smoke" else 2)
     share = policy.counts / max(1, policy.counts.sum())
     result = {"exercise": ex.name, "tag": tag, "budget": budget, "seed": seed,
-              "variant": cfg.variant, "seq_len": cfg.seq_len,
-              "hfov_deg": 90.0 if s["camera"] is None else s["camera"].hfov_deg,
-              "actions": np.asarray(actions).tolist(),
+              "variant": cfg.variant, "seq_len": cfg.window(), "hfov_deg": cfg.hfov_deg,
+              "actions": actions.tolist(),
               "success": res.rate, "ci": [res.ci_low, res.ci_high], "flights": res.flights,
               "mean_steps": res.mean_steps, "action_share": np.round(share, 4).tolist(),
-              "mean_abs_yaw_rate": float(share @ np.abs(np.asarray(actions)[:, 1])),
+              "mean_abs_yaw_rate": float(share @ np.abs(actions[:, 1])),
               "train_seconds": round(t_train, 1), "gif": gif,
-              "last_curve_row": trainer.curve[-1] if trainer.curve else {}}
+              "last_curve_row": run.curve[-1] if run.curve else {}}
     if pred is not None:
         result.update({"pred_success": pred.rate, "pred_ci": [pred.ci_low, pred.ci_high],
                        "pred_mean_steps": pred.mean_steps, "depth_model": est_path})
@@ -229,13 +228,13 @@ def run_agent_exercise(ex: Exercise, module, budget: str = "small", variant: str
 def _shipped_depth_estimator(scenario: str):
     """(estimator, path): the shipped DispNet of ``scenario``
     (minid3rqn/models/depth_<scenario>.npz), loaded as ``evaluate --depth pred`` loads it."""
-    from ..rl.commands import load_depth_estimator, shipped_depth_model
+    from ..rl.models import load_depth_estimator, shipped_depth_model
     path = shipped_depth_model(scenario)
     if not path.is_file():
         raise SystemExit(f"exercise: the shipped depth model {str(path)!r} is missing; it is "
                          f"needed to fly the test flights on predicted depth (reinstall the "
                          f"package, or train one with `python -m minid3rqn train-depth "
-                         f"--scenario {scenario} --ship`)")
+                         f"--scenario {scenario}`)")
     try:
         shown = str(path.resolve().relative_to(REPO_ROOT))
     except ValueError:
@@ -243,34 +242,21 @@ def _shipped_depth_estimator(scenario: str):
     return load_depth_estimator(path), shown
 
 
-def _flight_gif(run_dir: Path, actions, flights: int = 8):
-    """GIF of test flight 0 (top view | camera | depth | Q-values), with ``rl.fly``.
+def _flight_gif(run_dir: Path, flights: int = 8):
+    """GIF of test flight 0 (top view | camera | depth | Q-values), with ``rl.fly``, with
+    the actions and camera of the model file.
 
     Every run uses the same evaluation seed, so flight 0 starts in the same world and
-    pose in every run: the GIFs of two runs compare one flight. Must be called inside
-    ``classroom_flights`` (same actions and camera as training). Returns the path, or
+    pose in every run: the GIFs of two runs compare one flight. Returns the path, or
     None if the GIF could not be made (it is a bonus, never a reason to fail a run).
     """
     try:
-        names = [f"{w:+.2f}" if abs(v - 2.0) < 1e-9 else f"{v:g}m/s {w:+.2f}"
-                 for v, w in np.asarray(actions)]
-        with contextlib.ExitStack() as stack:
-            stack.enter_context(adapters.patched("minid3rqn.rl.fly", "Flights",
-                                                 _current_flights()))
-            stack.enter_context(adapters.patched("minid3rqn.rl.fly", "ACTION_NAMES", names))
-            from ..rl.fly import fly
-            out = fly(run_dir / "model.npz", None, "basic", EVAL_SEED, flights,
-                      run_dir / "flight.gif")
-        return out.get("gif")
+        from ..rl.fly import fly
+        return fly(run_dir / "model.npz", None, "basic", EVAL_SEED, flights,
+                   run_dir / "flight.gif").get("gif")
     except Exception as e:  # noqa: BLE001
         print(f"(no flight GIF: {type(e).__name__}: {e})")
         return None
-
-
-def _current_flights():
-    """The Flights factory installed by ``classroom_flights`` (rl.train's, patched)."""
-    import importlib
-    return importlib.import_module("minid3rqn.rl.train").Flights
 
 
 # -- the depth exercise ----------------------------------------------------------------
@@ -311,8 +297,10 @@ def run_depth_exercise(ex: Exercise, module, budget: str = "small", seed: int = 
                       checkpoint_every=10 ** 9, loss=loss)
     fn = None if module is None else module.photometric_error
     t0 = time.time()
-    trainer = Trainer(train, cfg, photometric_error=fn)
-    trainer.run(progress=progress)
+    from .adapters import photometric_error
+    with photometric_error(fn):
+        trainer = Trainer(train, cfg)
+        trainer.run(progress=progress)
     t_train = time.time() - t0
     est = DepthEstimator(trainer.disp, trainer.speed_scale())
     metrics = evaluate(est, test)

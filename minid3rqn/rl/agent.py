@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import autograd as ag
+from ..config import at_least, between, positive, setting, validate
 from ..autograd import Tensor, no_grad
 from ..autograd.losses import huber_loss
 from ..autograd.optim import Adam, clip_grad_norm
@@ -47,20 +48,31 @@ def double_q_targets(q_online_next: np.ndarray, q_target_next: np.ndarray,
 
 @dataclass
 class AgentConfig:
-    gamma: float = 0.99          # paper, Table 4
-    lr: float = 3e-4             # paper, Table 4
-    target_update: int = 300     # paper, Table 4 (in updates)
-    huber_delta: float = 1.0     # ours (the paper does not give its loss)
-    grad_clip: float = 10.0      # ours: global-norm clipping
-    burn_in: int = 0             # steps at the window's start left out of the loss
-    reward_scale: float = 0.1    # ours: rewards x 0.1 (same policy; Q-values ~ 10, not ~ 100)
+    gamma: float = setting(0.99, "discount factor", source="paper", check=between(0, 1))
+    lr: float = setting(3e-4, "Adam step size", source="paper", check=positive)
+    target_update: int = setting(300, "updates between target-net refreshes",
+                                 source="paper", check=at_least(1))
+    huber_delta: float = setting(1.0, "Huber loss: quadratic within +-delta (the paper "
+                                      "does not give its loss)", check=positive)
+    grad_clip: float = setting(10.0, "clip the gradient's global norm to this",
+                               check=positive)
+    burn_in: int = setting(0, "steps at a window's start left out of the loss",
+                           check=at_least(0))
+    reward_scale: float = setting(0.1, "rewards x this (the same policy; Q-values ~ 10, "
+                                       "not ~ 100)", check=positive)
+
+    def __post_init__(self):
+        validate(self)
 
 
 class Agent:
-    """Online and target QNet, Adam, and the update."""
+    """Online and target QNet, Adam, and the update. ``td_target``: the TD target, a
+    function like ``double_q_targets`` (the default)."""
 
-    def __init__(self, qnet_config: QNetConfig, config: AgentConfig | None = None, rng=None):
+    def __init__(self, qnet_config: QNetConfig, config: AgentConfig | None = None, rng=None,
+                 td_target=None):
         self.config = config or AgentConfig()
+        self.td_target = td_target or double_q_targets
         self.online = QNet(qnet_config, rng=rng)
         self.target = QNet(qnet_config, rng=0)
         self.target.copy_from(self.online)
@@ -115,8 +127,9 @@ class Agent:
         q_all, _ = self.online(batch.obs)                       # (L+1, B, A), with graph
         with no_grad():
             q_tgt, _ = self.target(batch.obs)
-        y = double_q_targets(q_all.data[1:], q_tgt.data[1:], batch.rewards * cfg.reward_scale,
-                             batch.terminals, cfg.gamma)
+        y = self.td_target(q_all.data[1:], q_tgt.data[1:], batch.rewards * cfg.reward_scale,
+                           batch.terminals, cfg.gamma)
+        y = np.asarray(y, dtype=np.float32)
         t_idx, b_idx = np.meshgrid(np.arange(L), np.arange(B), indexing="ij")
         q_sa = q_all[t_idx, b_idx, batch.actions]                # (L, B)
         mask = batch.mask.copy()

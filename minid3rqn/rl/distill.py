@@ -1,66 +1,45 @@
-"""Distillation from a privileged teacher: our addition, not the paper's method.
+"""Distillation from a privileged teacher: our addition, built on the paper's loop.
 
 Why. A D3RQN trained long on ground-truth depth flies far better than the same net on
-the DispNet's predicted depth (docs/results.md: 0.95 against 0.87 in ``basic``), and
-an ensemble of five such nets better still (0.97). Fine-tuning on predicted depth by
-Q-learning (the shipped recipe) must rediscover, from rewards alone, how to read the
-DispNet's errors. A teacher that sees the true depth can instead *tell* the student,
-at every frame, how good each action is. This is the idea behind "learning by
-cheating" (Chen et al. 2019) and DAgger (Ross et al. 2011), with a Q-net as both
-teacher and student (policy distillation, Rusu et al. 2016).
+the DispNet's predicted depth (docs/results.md), and an ensemble of such nets better
+still. Fine-tuning on predicted depth by Q-learning must rediscover, from rewards
+alone, how to read the DispNet's errors. A teacher that sees the true depth can instead
+*tell* the student, at every frame, how good each action is: "learning by cheating"
+(Chen et al. 2019) and DAgger (Ross et al. 2011), with a Q-net as both teacher and
+student (policy distillation, Rusu et al. 2016).
 
-What. Flights are flown exactly as in Q-learning (``rl.train``), with two changes:
+What. ``distil`` runs ``rl.train.train`` with its own steps 1 and 4:
 
-    1. the teacher (one Q-net file or an ensemble, 'A.npz+B.npz+...') reads the GT depth
-       frame of every flight at every step (``Flights.gt_frames``), carrying its own
-       recurrent state through the flight, and its Q-values Q_T(o_t, .) are stored in
-       the replay beside the student's predicted-depth frame o_t (``LabelledReplay``);
-    2. the flights fly the teacher's greedy action with probability beta (the "mix"),
-       else the student's: beta falls linearly from ``teacher_mix`` to 0 over
-       ``teacher_mix_steps`` transitions. At first the data follows the teacher's
-       flights; later the student's own, so it learns what to do in the states *its*
-       mistakes lead to (DAgger). There is no epsilon-greedy exploration (the
-       ``eps_*`` settings are unused): the teacher's actions are the exploration.
+    1. act: the teacher (a Q-net file or an ensemble, 'A.npz+B.npz+...') reads the GT
+       depth frame of every flight (``Flights.gt_frames``), carrying its own recurrent
+       state through the flight; its Q-values Q_T(o_t, .) are stored in the replay
+       beside the student's frame o_t (``LabelledReplay``). The flights fly the
+       teacher's greedy action with probability beta, else the student's: beta falls
+       linearly from ``teacher_mix`` to 0 over ``teacher_mix_steps`` transitions, so
+       the student then learns in the states its own mistakes lead to (DAgger). No
+       epsilon: the teacher's actions are the exploration.
+    4. learn: on windows of L steps from a zero state, the student's Q-values of every
+       action regress onto the teacher's,
 
-A variant (``teacher_depth="pred"``, ours): the teacher reads the student's own
-predicted-depth frame instead of the GT one. The teacher is then not privileged: it is
-a set of nets that already fly on predicted depth (say, several students and their
-mirror images), and the student learns to fly as their ensemble does in one pass.
+           L_Q = mean over unmasked (t, b) and actions a of Huber(Q_S(o_t, a) - Q_T(o_t, a)),
 
-A second variant (``base_teachers``, ours): in a mixed pool (``FlightsConfig.scene_mix`` <
-1, some worlds built with ``scene``, the rest the scenario as it is) each kind of world
-can have its own teacher, as in multi-task policy distillation (Rusu et al. 2016), where
-every task's expert labels that task's data: ``teachers`` label the flights in the
-changed worlds, ``base_teachers`` those in the scenario's own. Both fly every flight and
-carry their recurrent state through it (simple, at twice a teacher's cost); each
-flight keeps the labels and actions of its own world's teacher
-(``Flights.in_changed_world``).
+       plus ``distil_kl`` times a KL term on the action preferences at temperature T
+       (Hinton et al. 2015),
 
-The update replaces the double-Q loss: on a window of L = 5 steps from a zero state
-(as in Q-learning, ``rl.agent``), the student's Q-values of every action regress onto
-the teacher's:
+           L_KL = mean over unmasked (t, b) of sum_a p_T(a) [log p_T(a) - log p_S(a)],
+           p_T = softmax(Q_T(o_t, .) / T),  p_S = softmax(Q_S(o_t, .) / T).
 
-    L = mean over unmasked (t, b) and actions a of Huber(Q_S(o_t, a) - Q_T(o_t, a))
+       The Huber loss spends its effort on Q-values, while in most states the teacher's
+       best actions differ by a few hundredths, below the student's error; the KL term
+       looks only at differences between actions. With ``mirror_augment`` each sampled
+       window is seen in a left-right mirror with probability 1/2 (``rl.mirror``).
 
-A second term, optional (``distil_kl`` > 0, ours): the Huber loss spends most of its
-effort on Q-values, and in most states of ``basic`` the teacher's best and second-best
-actions differ by a few hundredths (median 0.04 on Q-values near 14), far below the
-student's typical error; the greedy action, the only thing a flight uses, is then
-barely constrained. The KL divergence between the teacher's and the student's action
-preferences at temperature T (Hinton et al. 2015; Rusu et al. 2016),
-
-    L_KL = mean over unmasked (t, b) of sum_a p_T(a) [log p_T(a) - log p_S(a)],
-    p_T = softmax(Q_T(o_t, .) / T),  p_S = softmax(Q_S(o_t, .) / T),
-
-looks only at differences between actions, and weighs them by how much they differ
-compared with T: near-ties stay soft, clear preferences become near-certain targets.
-The loss is then L + distil_kl * L_KL.
-
-Rewards are still stored (the learning curve reports them) but not learned from. The
-student is a D3RQN like any other: ``evaluate`` and ``fly`` read its file unchanged.
+The student is a D3RQN like any other: ``evaluate`` and ``fly`` read its file unchanged.
 """
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -68,8 +47,51 @@ import numpy as np
 from .. import autograd as ag
 from ..autograd.losses import huber_loss
 from ..autograd.optim import clip_grad_norm
-from .replay import EpisodeReplay
-from .train import TrainConfig, Trainer
+from ..config import at_least, between, positive, setting, validate
+from .agent import AgentConfig
+from .mirror import mirror_permutation, mirror_q, mirror_windows
+from .replay import EpisodeReplay, SequenceBatch
+from .train import Run, TrainConfig, start_run, train
+
+
+def student() -> TrainConfig:
+    """Our recipe's student (reproduce --recipe distil): the wide torso (conv channels
+    8, 16, 16) and 256 LSTM units, Adam at 1e-4, on predicted depth; no epsilon."""
+    return TrainConfig(steps=40_000, learning_starts=2_000, replay_capacity=60_000,
+                       updates_per_step=4.0, hidden=256, conv_channels=[8, 16, 16],
+                       depth="pred", eps_start=0.0, eps_end=0.0, agent=AgentConfig(lr=1e-4))
+
+
+# The distil command's options; the other settings are given with --set NAME=VALUE.
+DISTIL_OPTIONS = ("teachers", "init_model", "steps", "seed", "depth")
+
+
+@dataclass
+class DistilConfig:
+    teachers: str = setting("", "the teacher: Q-net .npz files joined by '+', flown on GT "
+                                "depth", source="run")
+    teacher_mix: float = setting(0.5, "probability of flying the teacher's action at the "
+                                      "start", check=between(0, 1))
+    teacher_mix_steps: int = setting(20_000, "transitions over which it falls to 0",
+                                     check=at_least(1))
+    distil_kl: float = setting(1.0, "weight of the KL term (0: the Huber loss only)",
+                               check=at_least(0))
+    distil_temperature: float = setting(0.1, "temperature of the KL term, in Q-value units",
+                                        check=positive)
+    mirror_augment: bool = setting(True, "learn from each window mirrored with probability "
+                                         "1/2")
+    init_widen: bool = setting(False, "the init_model's LSTM is narrower than hidden: grow "
+                                      "it (the same Q-values at the start)")
+    train: TrainConfig = setting(default_factory=student)
+
+    def __post_init__(self):
+        validate(self)
+
+
+@dataclass
+class LabelledBatch(SequenceBatch):
+    """Windows with the teacher's Q-values of each step's frame: labels (L, B, A)."""
+    labels: np.ndarray | None = None
 
 
 class LabelledReplay(EpisodeReplay):
@@ -77,7 +99,7 @@ class LabelledReplay(EpisodeReplay):
 
     ``label_latest(q)`` labels the newest frame of every stream (o_t, before the action
     taken from it is added); ``sample`` returns them as ``batch.labels`` (L, B, A),
-    aligned with ``batch.obs[:L]``.
+    aligned with ``batch.obs[:L]``, zero where the mask is.
     """
 
     def __init__(self, capacity: int, n_streams: int, frame_shape, n_actions: int, seed=None):
@@ -94,24 +116,19 @@ class LabelledReplay(EpisodeReplay):
                                "episode (start_episodes first)")
         self.labels[np.arange(self.n_streams), (self.count - 1) % self.cap] = q
 
-    def _gather(self, streams, starts, L, stack):
+    def _gather(self, streams, starts, L, stack) -> LabelledBatch:
         batch = super()._gather(streams, starts, L, stack)
         slot = (starts[:, None] + np.arange(L)[None, :]) % self.cap       # (B, L)
         labels = self.labels[streams[:, None], slot].transpose(1, 0, 2)   # (L, B, A)
-        batch.labels = labels * batch.mask[:, :, None]
-        return batch
+        return LabelledBatch(**vars(batch), labels=labels * batch.mask[:, :, None])
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {**super().state_dict(), "labels": self.labels}
 
 
-def load_teacher(spec: str, frame_shape, n_actions: int, mirror: bool = False):
-    """'A.npz' or 'A.npz+B.npz+...' -> a QNetPolicy or an EnsemblePolicy, checked to
-    read frames of ``frame_shape`` and to score ``n_actions`` actions.
-
-    ``mirror``: every net also flies the mirrored view (``QNetPolicy.mirrored``), and the
-    teacher is the ensemble of all of them, twice as many members (``evaluate --mirror``
-    for a teacher; our addition)."""
+def load_teacher(spec: str, frame_shape, n_actions: int):
+    """'A.npz' or 'A.npz+B.npz+...' -> a QNetPolicy or an EnsemblePolicy, checked to read
+    frames of ``frame_shape`` and to score ``n_actions`` actions (ValueError otherwise)."""
     from .policies import EnsemblePolicy, QNetPolicy
     parts = str(spec).split("+")
     if not spec or any(not p for p in parts):
@@ -128,147 +145,115 @@ def load_teacher(spec: str, frame_shape, n_actions: int, mirror: bool = False):
             raise ValueError(f"teachers: {p!r} reads {got[0]} frames and scores {got[1]} "
                              f"actions; the student needs {tuple(frame_shape)} and {n_actions}")
         members.append(pol)
-    if mirror:
-        members += [m.mirrored() for m in members]
     return members[0] if len(members) == 1 else EnsemblePolicy(members, name="teacher")
 
 
-class Distiller(Trainer):
-    """``Trainer`` whose student learns the teacher's Q-values; see the module docstring."""
+def kl_term(q, labels: np.ndarray, mask: np.ndarray, temperature: float):
+    """L_KL of the module docstring: q (L, B, A) the student's Q-values (a Tensor),
+    labels (L, B, A) the teacher's, mask (L, B) the real (not padded) steps."""
+    t = float(temperature)
+    log_p_t = ag.log_softmax(ag.Tensor(labels.astype(q.dtype) / t), axis=-1).data
+    w = np.exp(log_p_t) * mask[:, :, None].astype(q.dtype)   # p_T, 0 on padded steps
+    log_p_s = ag.log_softmax(q * (1.0 / t), axis=-1)
+    kl = ag.sum((log_p_s * -1.0 + log_p_t) * w)
+    return kl * (1.0 / max(1.0, float(mask.sum())))
 
-    learns_from_teacher = True
 
-    def __init__(self, cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True):
-        if not cfg.teachers:
-            raise ValueError("Distiller: cfg.teachers is empty; give the teacher's Q-net "
-                             "file(s), 'A.npz' or 'A.npz+B.npz+...'")
-        if not 0.0 <= cfg.teacher_mix <= 1.0:
-            raise ValueError(f"Distiller: teacher_mix is a probability in [0, 1]; got "
-                             f"{cfg.teacher_mix}")
-        if cfg.teacher_mix_steps < 1:
-            raise ValueError(f"Distiller: teacher_mix_steps must be >= 1; got "
-                             f"{cfg.teacher_mix_steps}")
-        if cfg.teacher_depth not in ("gt", "pred"):
-            raise ValueError(f"Distiller: teacher_depth is 'gt' or 'pred'; got "
-                             f"{cfg.teacher_depth!r}")
-        if not (np.isfinite(cfg.distil_kl) and cfg.distil_kl >= 0):
-            raise ValueError(f"Distiller: distil_kl (--distil-kl) is a weight >= 0; got "
-                             f"{cfg.distil_kl!r}")
-        if not (np.isfinite(cfg.distil_temperature) and cfg.distil_temperature > 0):
-            raise ValueError(f"Distiller: distil_temperature (--distil-temperature) is a "
-                             f"temperature > 0 in Q-value units; got {cfg.distil_temperature!r}")
-        if cfg.teacher_depth == "pred" and cfg.depth != "pred":
-            raise ValueError("Distiller: teacher_depth='pred' gives the teacher the student's "
-                             f"predicted-depth frames, so it needs depth='pred'; got "
-                             f"depth={cfg.depth!r}")
-        if cfg.base_teachers and not (cfg.flights.scene and cfg.flights.scene_mix < 1.0):
-            raise ValueError(f"Distiller: base_teachers (--base-teachers) teach in the "
-                             f"scenario's own worlds of a mixed pool, so they need "
-                             f"flights.scene set and flights.scene_mix < 1; got scene="
-                             f"{cfg.flights.scene!r}, scene_mix={cfg.flights.scene_mix!r}")
-        super().__init__(cfg, out_dir, depth_estimator, progress)
-        self.teacher = load_teacher(cfg.teachers, self.frame_shape, self.flights.n_actions,
-                                    mirror=cfg.teacher_mirror)
-        self.teacher.reset(cfg.n_envs)
-        self.base_teacher = None                     # the second teacher of a mixed pool
-        if cfg.base_teachers:
-            self.base_teacher = load_teacher(cfg.base_teachers, self.frame_shape,
-                                             self.flights.n_actions, mirror=cfg.teacher_mirror)
-            self.base_teacher.reset(cfg.n_envs)
-        self.teacher_started = np.ones(cfg.n_envs, bool)
-        self._window["agree"] = []
+class Distillation:
+    """Steps 1 and 4 of ``rl.train.train`` for a student of ``teacher`` (module
+    docstring). ``aug_seed``: the mirror augmentation's generator."""
 
-    def make_replay(self, seed) -> LabelledReplay:
-        return LabelledReplay(self.cfg.replay_capacity, self.cfg.n_envs, self.frame_shape,
-                              self.flights.n_actions, seed=seed)
+    def __init__(self, cfg: DistilConfig, teacher, actions, aug_seed):
+        self.cfg, self.teacher = cfg, teacher
+        self.mirror_of = mirror_permutation(actions) if cfg.mirror_augment else None
+        self.aug_rng = np.random.default_rng(aug_seed)
 
-    def teacher_mix_at(self, step: int) -> float:
-        """beta: linear from ``teacher_mix`` to 0 over ``teacher_mix_steps`` transitions."""
-        frac = min(1.0, step / self.cfg.teacher_mix_steps)
-        return self.cfg.teacher_mix * (1.0 - frac)
-
-    # -- the loop (rl.train.Trainer.vector_step calls these) -------------------------
-    def choose_actions(self) -> np.ndarray:
-        if self.cfg.teacher_depth == "gt":
-            seen = self.flights.gt_frames()
-        else:                                                  # the student's current frame
-            seen = self.stacker.obs[:, -1]
-        teacher_a = self.teacher.act({"frames": seen}, started=self.teacher_started)
-        teacher_q = self.teacher.last_q
-        if self.base_teacher is not None:                      # each world its own teacher
-            base_a = self.base_teacher.act({"frames": seen}, started=self.teacher_started)
-            base = ~self.flights.in_changed_world()
-            teacher_a = np.where(base, base_a, teacher_a)
-            teacher_q = np.where(base[:, None], self.base_teacher.last_q, teacher_q)
-        self.teacher_started[:] = False
-        self.replay.label_latest(teacher_q)                    # Q_T(o_t, .)
-        q, self.state = self.agent.q_values(self.stacker.obs, self.state)
-        student_a = np.argmax(q, axis=1)
-        self._window["agree"].append(float(np.mean(student_a == teacher_a)))
-        fly_teacher = self.rng.random(len(student_a)) < self.teacher_mix_at(self.steps)
-        return np.where(fly_teacher, teacher_a, student_a).astype(np.int64)
-
-    def episodes_ended(self, done: np.ndarray) -> None:
-        super().episodes_ended(done)
-        self.teacher_started |= np.asarray(done, bool)
-
-    def learn(self, batch) -> dict:
-        """One step of the distillation loss (module docstring) with Adam."""
-        L = batch.labels.shape[0]
-        q_all, _ = self.agent.online(batch.obs)                  # (L+1, B, A), with graph
-        q = q_all[:L]
-        per = huber_loss(q, batch.labels, delta=self.agent.config.huber_delta, reduction="none")
-        mask = np.broadcast_to(batch.mask[:, :, None], batch.labels.shape).astype(np.float32)
-        loss = ag.sum(per * mask) * (1.0 / max(1.0, float(mask.sum())))
-        info = {}
-        if self.cfg.distil_kl > 0:
-            kl = self.kl_term(q, batch.labels, batch.mask)
-            info["kl"] = float(kl.data)
-            self._window.setdefault("kl", []).append(info["kl"])
-            loss = loss + kl * self.cfg.distil_kl
-        opt = self.agent.optimizer
-        opt.zero_grad()
-        loss.backward()
-        grad_norm = clip_grad_norm(self.agent.online.parameters(), self.agent.config.grad_clip)
-        opt.step()
-        self.agent.updates += 1
-        q_mean = float((q.data * mask).sum() / max(1.0, mask.sum()))
-        return {"loss": float(loss.data), "q_mean": q_mean, "grad_norm": grad_norm, **info}
-
-    def kl_term(self, q, labels: np.ndarray, mask: np.ndarray):
-        """L_KL of the module docstring: q (L, B, A) the student's Q-values (a Tensor),
-        labels (L, B, A) the teacher's, mask (L, B) the real (not padded) steps."""
-        t = float(self.cfg.distil_temperature)
-        log_p_t = ag.log_softmax(ag.Tensor(labels.astype(q.dtype) / t), axis=-1).data
-        w = np.exp(log_p_t) * mask[:, :, None].astype(q.dtype)   # p_T, 0 on padded steps
-        log_p_s = ag.log_softmax(q * (1.0 / t), axis=-1)
-        kl = ag.sum((log_p_s * -1.0 + log_p_t) * w)
-        return kl * (1.0 / max(1.0, float(mask.sum())))
-
-    # -- the learning curve and the checkpoint --------------------------------------
-    def extra_row(self) -> dict:
-        agree = self._window.get("agree", [])
-        row = {"epsilon": 0.0, "teacher_mix": round(self.teacher_mix_at(self.steps), 4),
-               "agree": float(np.mean(agree)) if agree else float("nan")}
-        if self.cfg.distil_kl > 0:                       # L_KL alone (loss has L + W L_KL)
-            kl = self._window.get("kl", [])
-            row["kl"] = float(np.mean(kl)) if kl else float("nan")
-        return row
-
-    def extra_state(self) -> dict[str, np.ndarray]:
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The teacher's memory of the flights and the augmentation's generator."""
         state = {f"teacher.{k}": v for k, v in self.teacher.state_dict().items()}
-        if self.base_teacher is not None:
-            state.update({f"base_teacher.{k}": v
-                          for k, v in self.base_teacher.state_dict().items()})
-        state["teacher_started"] = self.teacher_started.copy()
+        state["aug_rng"] = np.asarray(json.dumps(self.aug_rng.bit_generator.state))
         return state
 
-    def load_extra_state(self, arrays: dict[str, np.ndarray]) -> None:
-        for prefix, teacher in (("teacher.", self.teacher), ("base_teacher.", self.base_teacher)):
-            if teacher is not None:
-                teacher.load_state_dict({k[len(prefix):]: v for k, v in arrays.items()
-                                         if k.startswith(prefix)})
-        self.teacher_started[...] = arrays["teacher_started"]
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        self.teacher.load_state_dict({k[len("teacher."):]: v for k, v in state.items()
+                                      if k.startswith("teacher.")})
+        self.aug_rng.bit_generator.state = json.loads(str(state["aug_rng"]))
+
+    def mix_at(self, step: int) -> float:
+        """beta: linear from ``teacher_mix`` to 0 over ``teacher_mix_steps`` transitions."""
+        return self.cfg.teacher_mix * (1.0 - min(1.0, step / self.cfg.teacher_mix_steps))
+
+    def act(self, run: Run) -> np.ndarray:
+        started = run.flights.t == 0                     # flights that have just begun
+        teacher_a = self.teacher.act({"frames": run.flights.gt_frames()}, started=started)
+        run.replay.label_latest(self.teacher.last_q)     # Q_T(o_t, .)
+        q, run.state = run.agent.q_values(run.stacker.obs, run.state)
+        student_a = np.argmax(q, axis=1)
+        beta = self.mix_at(run.steps)
+        run.note("teacher_mix", beta)
+        run.note("agree", np.mean(student_a == teacher_a))
+        fly_teacher = run.rng.random(len(student_a)) < beta
+        return np.where(fly_teacher, teacher_a, student_a).astype(np.int64)
+
+    def learn(self, run: Run, batch: LabelledBatch) -> dict:
+        """One Adam step on L_Q + distil_kl * L_KL (no target net: the teacher is one)."""
+        labels = batch.labels
+        if self.mirror_of is not None:
+            which = self.aug_rng.random(batch.actions.shape[1]) < 0.5
+            batch = mirror_windows(batch, which, self.mirror_of)
+            labels = mirror_q(labels, which, self.mirror_of)
+        agent = run.agent
+        q = agent.online(batch.obs)[0][:labels.shape[0]]          # (L, B, A), with graph
+        per = huber_loss(q, labels, delta=agent.config.huber_delta, reduction="none")
+        mask = np.broadcast_to(batch.mask[:, :, None], labels.shape).astype(np.float32)
+        loss = ag.sum(per * mask) * (1.0 / max(1.0, float(mask.sum())))
+        if self.cfg.distil_kl > 0:
+            kl = kl_term(q, labels, batch.mask, self.cfg.distil_temperature)
+            run.note("kl", kl.data)
+            loss = loss + kl * self.cfg.distil_kl
+        agent.optimizer.zero_grad()
+        loss.backward()
+        clip_grad_norm(agent.online.parameters(), agent.config.grad_clip)
+        agent.optimizer.step()
+        agent.updates += 1
+        return {"loss": float(loss.data),
+                "q_mean": float((q.data * mask).sum() / max(1.0, mask.sum()))}
 
 
-__all__ = ["Distiller", "LabelledReplay", "load_teacher"]
+def _widen(agent, path) -> None:
+    """Load a Q-net with a narrower LSTM into ``agent``, grown (``widen_recurrent_state``)."""
+    from ..io import load_npz
+    from ..nets.qnet import widen_recurrent_state
+    old, _ = load_npz(path)
+    agent.online.load_state_dict(widen_recurrent_state(old, agent.online.state_dict()))
+
+
+def distil(cfg: DistilConfig, out_dir, depth_estimator=None, *, progress: bool = True,
+           resume: bool = False) -> Run:
+    """Train ``cfg.train``'s student by distillation (module docstring) with
+    ``rl.train.train``; returns the run. ``depth_estimator``: the student's DispNet
+    (``cfg.train.depth="pred"``)."""
+    from ..world import ACTIONS, Camera
+    t = cfg.train
+    if not cfg.teachers:
+        raise ValueError("distil: cfg.teachers is empty; give the teacher's Q-net file(s), "
+                         "'A.npz' or 'A.npz+B.npz+...'")
+    if cfg.init_widen and not t.init_model:
+        raise ValueError("distil: init_widen grows the init_model's LSTM; set init_model")
+    actions = np.asarray(ACTIONS if t.actions is None else t.actions, dtype=np.float64)
+    cam = Camera(hfov_deg=t.hfov_deg)
+    teacher = load_teacher(cfg.teachers, (cam.height, cam.width), len(actions))
+    teacher.reset(t.n_envs)
+    # the fifth stream of the run's seed (rl.train draws from the first four)
+    steps = Distillation(cfg, teacher, actions, np.random.SeedSequence(t.seed).spawn(5)[4])
+
+    def replay(capacity, n_streams, frame_shape, seed):
+        return LabelledReplay(capacity, n_streams, frame_shape, len(actions), seed=seed)
+    run = start_run(t, out_dir, depth_estimator, resume, replay=replay,
+                    extra={"distillation": steps},
+                    load_init=_widen if cfg.init_widen else None)
+    return train(t, out_dir, progress=progress, run=run, act=steps.act, learn=steps.learn)
+
+
+__all__ = ["DISTIL_OPTIONS", "DistilConfig", "Distillation", "LabelledReplay", "LabelledBatch", "distil",
+           "load_teacher", "kl_term", "student"]

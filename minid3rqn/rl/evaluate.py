@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
+import sys
 import time
 import warnings
 from contextlib import nullcontext
@@ -41,6 +42,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..config import at_least, setting, validate
 from .flights import Flights, FlightsConfig
 from .policies import Policy
 
@@ -212,8 +214,8 @@ def _chunk_seeds(seed: int, n_flights: int, chunk: int) -> list[tuple[int, int]]
 
 
 def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsConfig,
-               depth: str, depth_estimator, max_steps: int,
-               flights_factory=Flights) -> tuple[np.ndarray, np.ndarray]:
+               depth: str, depth_estimator, max_steps: int, flights_factory=Flights,
+               actions=None, camera=None) -> tuple[np.ndarray, np.ndarray]:
     """Steps survived by the ``n`` flights of one chunk (world seed ``child``), and the
     seed of the world each flew in (its identity: the same seed is the same world)."""
     # A policy with a random generator (Random, an epsilon-greedy Q-net) draws from one
@@ -222,7 +224,8 @@ def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsCo
     if hasattr(policy, "reseed"):
         policy.reseed((child, 0x5EED))
     flights = flights_factory(scenario, n, seed=child, config=cfg, depth=depth,
-                              depth_estimator=depth_estimator, autoreset=False)
+                              depth_estimator=depth_estimator, autoreset=False,
+                              actions=actions, camera=camera)
     steps = run_flights(policy, flights, max_steps)
     return steps, np.asarray(flights.world_seeds, dtype=np.int64)[flights.world_of]
 
@@ -241,7 +244,8 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
                     depth: str = "gt", depth_estimator=None,
                     flights_config: FlightsConfig | None = None,
                     progress: bool = True, workers: int = 1,
-                    flights_factory=None, world_set: str = "test") -> EvalResult:
+                    flights_factory=None, world_set: str = "test", actions=None,
+                    camera=None) -> EvalResult:
     """Success rate of ``policy`` over ``n_flights`` fresh flights (greedy, batched).
 
     The flights are flown ``chunk`` at a time, each chunk from its own seed
@@ -252,7 +256,8 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     policy sees (``examples/07_which_depth_errors_matter.py``) is flown the same way.
     ``world_set``: "test" (the evaluation seed range, every reported rate) or "validation"
     (a third, disjoint range, for choosing between models without touching the test
-    worlds).
+    worlds). ``actions``, ``camera``: the flights' (default: those the policy's Q-nets
+    were trained with, recorded in their files; else the world's).
     """
     if n_flights < 1:
         raise ValueError(f"evaluate_policy: n_flights must be >= 1; got {n_flights}")
@@ -263,6 +268,9 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     if world_set not in ("test", "validation"):
         raise ValueError(f"evaluate_policy: world_set must be 'test' or 'validation'; got "
                          f"{world_set!r}")
+    if actions is None and camera is None:
+        from .models import actions_and_camera
+        actions, camera = actions_and_camera(policy)
     cfg = flights_config or FlightsConfig()
     cfg = FlightsConfig(**{**asdict(cfg), "max_steps": max_steps,
                            "test_worlds": world_set == "test",
@@ -282,7 +290,7 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
                    dynamic_ncols=True, leave=False)
     global _FORKED
     _FORKED = (policy, scenario, cfg, depth, depth_estimator, max_steps,
-               flights_factory or Flights)
+               flights_factory or Flights, actions, camera)
     survived, world = [], []
     try:
         with (mp.get_context("fork").Pool(workers) if workers > 1 else nullcontext()) as pool:
@@ -309,5 +317,61 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
                       w.successes.tolist(), w.flights.tolist())
 
 
-__all__ = ["wilson_interval", "clustered_interval", "world_variance", "by_world", "ByWorld",
+@dataclass
+class EvalConfig:
+    """How ``evaluate`` flies a policy (``evaluate_spec``)."""
+    flights: int = setting(2000, "test flights", source="paper", check=at_least(1))
+    steps: int = setting(50, "steps without a collision for a success", source="paper",
+                         check=at_least(1))
+    scenario: str = setting("basic", "the test worlds", source="run",
+                            choices=("basic", "channel", "intersections", "corners"))
+    seed: int = setting(12345, "the test worlds' seed", source="run")
+    depth: str = setting("gt", "what the policies read: GT depth or the DispNet's",
+                         source="run", choices=("gt", "pred"))
+    depth_model: str = setting("", "DispNet .npz for --depth pred (default: the shipped "
+                                   "one of the scenario)", source="run")
+    chunk: int = setting(500, "flights stepped together", source="run", check=at_least(1))
+    workers: int = setting(1, "processes flying the chunks, one per core (the same "
+                              "result; run with OMP_NUM_THREADS=1)", source="run",
+                           check=at_least(1))
+    validation: bool = setting(False, "fly the validation worlds instead of the test worlds "
+                                      "(for choosing between models)", source="run")
+    mirror: bool = setting(False, "each Q-net also flies the mirrored view; greedy on the "
+                                  "mean Q-values (docs/d3rqn.md section 10)", cli="main")
+    flip_tta: bool = setting(False, "the DispNet's disparity averaged with its disparity on "
+                                    "the mirrored frame (docs/depth.md section 7)", cli="main")
+
+    def __post_init__(self):
+        validate(self)
+
+
+def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
+                  progress: bool = True) -> tuple[EvalResult, dict]:
+    """What ``evaluate SPEC`` does: fly the policy ``spec`` (``models.load_policy``;
+    ValueError for a bad one), print its line, and return the result and the record
+    ``--json`` appends (the command that gives it, included)."""
+    from ..config import command_line
+    from .models import BASELINES, load_policy, unfinished_warning
+    pol = load_policy(spec, cfg.seed, mirror=cfg.mirror)
+    warning = unfinished_warning(pol)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
+    res = evaluate_policy(pol, cfg.scenario, cfg.flights, cfg.seed, cfg.steps, cfg.chunk,
+                          cfg.depth, depth_estimator, progress=progress, workers=cfg.workers,
+                          world_set="validation" if cfg.validation else "test")
+    flip = depth_estimator is not None and depth_estimator.flip
+    how = [f"{cfg.depth} depth"] + (["flip"] if flip else [])
+    if spec not in BASELINES:
+        what = f"  {spec} ({', '.join(how + (['mirror'] if cfg.mirror else []))})"
+    else:                                     # of these only the reactive rule reads depth
+        what = f"  ({', '.join(how)})" if spec == "reactive" else ""
+    print(res.line() + what, flush=True)
+    command = " ".join(["python -m minid3rqn evaluate", spec, *command_line(EvalConfig, cfg)])
+    record = {**res.to_dict(), "spec": spec, "depth_flip": bool(flip),
+              "mirror": bool(cfg.mirror and spec not in BASELINES),
+              "unfinished": warning is not None, "command": command}
+    return res, record
+
+
+__all__ = ["EvalConfig", "evaluate_spec", "wilson_interval", "clustered_interval", "world_variance", "by_world", "ByWorld",
            "EvalResult", "run_flights", "evaluate_policy"]

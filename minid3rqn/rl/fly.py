@@ -6,37 +6,70 @@ camera RGB | depth the Q-net sees | Q-values (chosen action highlighted).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from .. import viz
-from ..world import Camera, render_batch, topdown
+from ..config import at_least, setting, validate
+from ..world import render_batch, topdown
 from .evaluate import by_world, run_flights, wilson_interval
 from .flights import Flights, FlightsConfig
-from .policies import EnsemblePolicy, QNetPolicy
+from .mirror import MirroredPolicy
+from .models import actions_and_camera, load_qnet_policy
+from .policies import EnsemblePolicy
 
-ACTION_NAMES = ["0", "+.25", "-.25", "+.5", "-.5"]
+
+@dataclass
+class FlyConfig:
+    """What ``fly`` flies."""
+    model: str = setting("paper", "a shipped Q-net by name: paper (trained as the paper "
+                                  "trains it) or distil (our distilled student); or a Q-net "
+                                  ".npz (A.npz+B.npz+...: an ensemble on their mean "
+                                  "Q-values)", source="run")
+    scenario: str = setting("basic", "the worlds (the shipped DispNet of each reads them)",
+                            source="run",
+                            choices=("basic", "channel", "intersections", "corners"))
+    depth: str = setting("pred", "what the Q-net reads: the DispNet's depth or GT depth",
+                         source="run", choices=("gt", "pred"))
+    flights: int = setting(32, "flights for the success rate (the DispNet runs on every "
+                               "frame: keep it small)", source="run", check=at_least(1))
+    seed: int | None = setting(None, "world seed (none: random)", source="run")
+    gif: str = setting("fly.gif", "the GIF of flight 0", source="run")
+    mirror: bool = setting(False, "each Q-net also flies the mirrored view (a free "
+                                  "two-member ensemble)", cli="main")
+    flip_tta: bool = setting(False, "the DispNet's disparity averaged with its disparity on "
+                                    "the mirrored frame", cli="main")
+
+    def __post_init__(self):
+        validate(self)
+
+
+def action_names(actions) -> list[str]:
+    """Short names of an action table's rows: the yaw rate, and the speed if not 2 m/s."""
+    return [f"{w:+.2f}" if abs(v - 2.0) < 1e-9 else f"{v:g}m/s {w:+.2f}"
+            for v, w in np.asarray(actions)]
 
 
 def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flights: int = 200,
-        gif="fly.gif", max_steps: int = 50, mirror: bool = False,
-        horizon_row: float | None = None) -> dict:
+        gif="fly.gif", max_steps: int = 50, mirror: bool = False) -> dict:
     """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate.
     ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q), or
-    the loaded ``QNetPolicy`` list;
-    ``mirror``: each net also flies the mirrored view (``QNetPolicy.mirrored``);
-    ``horizon_row``: the camera's (``Camera.horizon_row``; None: the middle row)."""
+    the loaded policies; they fly with the action table and camera they were trained
+    with. ``mirror``: each net also flies the mirrored view (``rl.mirror``)."""
     t0 = time.time()
     members = list(model) if isinstance(model, (list, tuple)) else \
-        [QNetPolicy.load(part, "D3RQN") for part in str(model).split("+")]
+        [load_qnet_policy(part) for part in str(model).split("+")]
+    actions, camera = actions_and_camera(*members)
     if mirror:
-        members += [m.mirrored() for m in members]
+        members += [MirroredPolicy(m) for m in members]
     policy = members[0] if len(members) == 1 else EnsemblePolicy(members)
     depth = "pred" if depth_estimator is not None else "gt"
     flights = Flights(scenario, n_flights, seed=seed, depth=depth,
-                      depth_estimator=depth_estimator, autoreset=False,
-                      camera=Camera(horizon_row=horizon_row),
+                      depth_estimator=depth_estimator, autoreset=False, camera=camera,
+                      actions=actions,
                       config=FlightsConfig(max_steps=max_steps, test_worlds=True))
+    names = action_names(actions)
     frames_out, path, crashed = [], [], [False]
     max_depth = flights.cfg.max_depth
 
@@ -49,7 +82,7 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
             path.append(obs["poses"][k])
         rgb = obs["rgb"][k] if obs["rgb"] is not None else \
             render_batch(scene, obs["poses"][k:k + 1], flights.camera)[0][0]
-        bars = viz.bar_chart(policy.last_q[k], ACTION_NAMES, (160, 120), int(actions[k]),
+        bars = viz.bar_chart(policy.last_q[k], names, (160, 120), int(actions[k]),
                              title=f"Q-values, step {t + 1}")
         panels = [rgb, viz.depth_to_rgb(obs["depth"][k], 0.5, max_depth), bars]
         top = np.asarray(topdown(scene, np.array(path), obs["poses"][k], flights.camera, 192))
@@ -79,4 +112,4 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
             "flight0_steps": int(survived[0])}
 
 
-__all__ = ["fly"]
+__all__ = ["FlyConfig", "fly", "action_names"]

@@ -130,69 +130,21 @@ class OraclePolicy(Policy):
         return np.asarray(self.oracle(obs["flights"]), dtype=np.int64)
 
 
-def mirror_permutation(actions) -> np.ndarray:
-    """For each action (speed, yaw rate), the index of its mirror image: the same speed,
-    the opposite yaw rate. A world seen in a left-right mirror is flown by mirrored
-    actions. ValueError if the action table is not symmetric."""
-    actions = np.asarray(actions, dtype=np.float64)
-    mirrored = actions * np.array([1.0, -1.0])
-    match = np.all(np.isclose(actions[None, :, :], mirrored[:, None, :]), axis=2)  # (i, j)
-    if not match.any(axis=1).all():
-        missing = actions[~match.any(axis=1)].tolist()
-        raise ValueError(f"mirror_permutation: the action table has no mirror image for "
-                         f"{missing}; it needs, for every (speed, yaw rate), (speed, -yaw rate)")
-    return np.argmax(match, axis=1)
-
-
 class QNetPolicy(Policy):
-    """Greedy on a trained QNet; recurrent state carried through each flight.
+    """Greedy on a trained QNet; the recurrent state is carried through each flight and
+    zeroed when a flight starts (``started``)."""
 
-    ``window=k`` (recurrent nets only) instead re-runs the LSTM from a zero state over
-    the flight's last k frames at every step -- exactly what it saw in training (windows
-    of 5 from a zero state) -- rather than carrying the state through the whole flight.
-
-    ``mirror=True``: the net flies the flights as seen in a left-right mirror. It reads
-    every depth frame mirrored, and its Q-value of action a is reported as that of a's
-    mirror image (``mirror_permutation``; the camera is symmetric, cx = (W - 1) / 2).
-    A mirrored world is as likely as the world itself, so the mirrored net is a second
-    opinion for free. Joined with the plain one in an ``EnsemblePolicy``, it is a
-    two-member ensemble of one net (``evaluate --mirror``; docs/d3rqn.md section 10).
-    """
-
-    def __init__(self, qnet: QNet, name: str | None = None, epsilon: float = 0.0, seed=None,
-                 window: int | None = None, mirror: bool = False):
+    def __init__(self, qnet: QNet, name: str | None = None):
         self.qnet = qnet
         self.name = name or "QNet"
-        self.epsilon = epsilon
-        self.rng = np.random.default_rng(seed)
         self.last_q = None
-        self.window = window
-        if window is not None and not qnet.recurrent:
-            raise ValueError("QNetPolicy: window= needs a recurrent net")
-        self.mirror = bool(mirror)
-        self.mirror_of = None
-        if self.mirror:
-            from ..world import ACTIONS
-            if qnet.config.n_actions != len(ACTIONS):
-                raise ValueError(f"QNetPolicy: mirror=True needs the world's action table "
-                                 f"({len(ACTIONS)} actions); the net has "
-                                 f"{qnet.config.n_actions}")
-            self.mirror_of = mirror_permutation(ACTIONS)
-
-    def mirrored(self) -> "QNetPolicy":
-        """A greedy copy of this policy (the same net: shared weights, its own memory)
-        that flies the mirrored view."""
-        twin = QNetPolicy(self.qnet, self.name + "-mirrored", window=self.window,
-                          mirror=not self.mirror)
-        twin.meta = getattr(self, "meta", None)
-        return twin
 
     @classmethod
     def load(cls, path, name: str | None = None) -> "QNetPolicy":
+        """A Q-net file; its metadata (how it was trained) is kept as ``meta``."""
         from ..io import load_npz
         arrays, meta = load_npz(path)
-        cfg = QNetConfig(**meta["qnet_config"])
-        net = QNet(cfg, rng=0)
+        net = QNet(QNetConfig(**meta["qnet_config"]), rng=0)
         net.load_state_dict(arrays)
         pol = cls(net, name)
         pol.meta = meta
@@ -204,18 +156,12 @@ class QNetPolicy(Policy):
         self.stacker = FrameStacker(n, cfg.in_channels, (cfg.height, cfg.width_px))
         self.state = self.qnet.initial_state(n)
         self.fresh = np.ones(n, bool)
-        if self.window:
-            self.history = np.zeros((n, self.window, cfg.in_channels, cfg.height, cfg.width_px),
-                                    np.float32)
-            self.seen = np.zeros(n, np.int64)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """The flights' memory (frame stack, recurrent state), to resume a run exactly."""
         state = {"stack": self.stacker.buf, "fresh": self.fresh}
         if self.state is not None:
             state["h"], state["c"] = self.state[0].data, self.state[1].data
-        if self.window:
-            state["history"], state["seen"] = self.history, self.seen
         return {k: np.array(v) for k, v in state.items()}
 
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
@@ -224,14 +170,10 @@ class QNetPolicy(Policy):
         self.fresh[...] = state["fresh"]
         if "h" in state:
             self.state = (Tensor(np.array(state["h"])), Tensor(np.array(state["c"])))
-        if self.window:
-            self.history[...] = state["history"]
-            self.seen[...] = state["seen"]
 
     def act(self, obs, started=None):
+        from ..autograd import no_grad
         frames = np.asarray(obs["frames"], dtype=np.float32)
-        if self.mirror:
-            frames = np.ascontiguousarray(frames[..., ::-1])
         started = self.fresh if started is None else (np.asarray(started, bool) | self.fresh)
         if started.any():
             self.stacker.reset(np.flatnonzero(started), frames[started])
@@ -240,32 +182,10 @@ class QNetPolicy(Policy):
         if len(live):
             self.stacker.push(frames[live], live)
         self.fresh[:] = False
-        from ..autograd import no_grad
-        if self.window:
-            self.seen[started] = 0
-            self.history[:, :-1] = self.history[:, 1:]
-            self.history[:, -1] = self.stacker.obs
-            self.seen += 1
-            k = int(min(self.window, self.seen.max()))
-            with no_grad():    # flights with fewer frames: their window starts later
-                q_all, _ = self.qnet(self.history[:, -k:].transpose(1, 0, 2, 3, 4))
-            q = q_all[-1]
-            short = self.seen < k
-            if short.any():
-                for j in np.unique(self.seen[short]):
-                    rows = np.flatnonzero(self.seen == j)
-                    with no_grad():
-                        qj, _ = self.qnet(self.history[rows, -j:].transpose(1, 0, 2, 3, 4))
-                    q.data[rows] = qj.data[-1]
-        else:
-            with no_grad():
-                q, self.state = self.qnet.step(self.stacker.obs, self.state)
-        self.last_q = q.data[:, self.mirror_of] if self.mirror else q.data
-        actions = np.argmax(self.last_q, axis=1).astype(np.int64)
-        if self.epsilon > 0:
-            explore = self.rng.random(len(actions)) < self.epsilon
-            actions = np.where(explore, self.rng.integers(q.shape[1], size=len(actions)), actions)
-        return actions
+        with no_grad():
+            q, self.state = self.qnet.step(self.stacker.obs, self.state)
+        self.last_q = q.data
+        return np.argmax(self.last_q, axis=1).astype(np.int64)
 
 
 class EnsemblePolicy(Policy):
@@ -280,11 +200,11 @@ class EnsemblePolicy(Policy):
     def __init__(self, members: list, name: str | None = None):
         members = list(members)
         if len(members) < 2:
-            raise ValueError(f"EnsemblePolicy: members must hold at least 2 QNetPolicy; "
+            raise ValueError(f"EnsemblePolicy: members must hold at least 2 Q-net policies; "
                              f"got {len(members)}")
         for i, m in enumerate(members):
-            if not isinstance(m, QNetPolicy):
-                raise TypeError(f"EnsemblePolicy: members[{i}] must be a QNetPolicy; "
+            if not hasattr(m, "qnet"):
+                raise TypeError(f"EnsemblePolicy: members[{i}] must be a Q-net policy; "
                                 f"got {type(m).__name__}")
         shapes = {(m.qnet.config.height, m.qnet.config.width_px, m.qnet.config.n_actions)
                   for m in members}
@@ -318,4 +238,4 @@ class EnsemblePolicy(Policy):
 
 
 __all__ = ["Policy", "StraightPolicy", "RandomPolicy", "ReactivePolicy", "OraclePolicy",
-           "QNetPolicy", "EnsemblePolicy", "mirror_permutation"]
+           "QNetPolicy", "EnsemblePolicy"]

@@ -7,7 +7,7 @@ cannot:
 
 1. **Several evaluations together.** Six nets of one recipe, or one net on three sets of
    test worlds: what is the rate, and how sure are we? Flights are summed per *world*
-   (a world is its scenario, its ``--scene`` changes and its seed: six nets flown with
+   (a world is its scenario and its seed: six nets flown with
    the same evaluation seed fly the same 128 worlds, so those worlds count once, with six
    times the flights), and the interval is the by-world one of
    ``evaluate.clustered_interval``. Summing the flights and taking Wilson's interval
@@ -54,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import UsageError
 from .evaluate import clustered_interval, wilson_interval, world_variance
 
 
@@ -79,8 +80,8 @@ class Pooled:
 
 
 def world_key(record: dict, seed: int) -> tuple:
-    """What names a world: scenario, --scene changes (or None) and world seed."""
-    return (record["scenario"], json.dumps(record.get("scene"), sort_keys=True), int(seed))
+    """What names a world: its scenario and its seed."""
+    return record["scenario"], int(seed)
 
 
 def world_counts(records: list[dict]) -> dict:
@@ -189,7 +190,7 @@ def paired_difference(a: list[dict], b: list[dict], z: float = 1.96) -> tuple:
     if ca.keys() != cb.keys():
         raise ValueError(f"pool: the two sides flew different worlds ({len(ca)} and "
                          f"{len(cb)} worlds, {len(ca.keys() & cb.keys())} shared); pair "
-                         f"evaluations of the same scenario, --scene, seed and flights")
+                         f"evaluations of the same scenario, seed and flights")
     keys = sorted(ca)
     ya, ma = (np.array([ca[k][j] for k in keys], np.float64) for j in (0, 1))
     yb, mb = (np.array([cb[k][j] for k in keys], np.float64) for j in (0, 1))
@@ -259,7 +260,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _check_conditions(conditions: list[str], flag: str) -> None:
     for cond in conditions:
         if "=" not in cond or not cond.partition("=")[0]:
-            raise SystemExit(f"pool {flag}: expected KEY=VALUE (e.g. scenario=basic); "
+            raise UsageError(f"{flag}: expected KEY=VALUE (e.g. scenario=basic); "
                              f"got {cond!r}")
 
 
@@ -269,7 +270,7 @@ def run(args) -> int:
     try:
         return _run(args)
     except (ValueError, FileNotFoundError) as e:     # our own messages, not a traceback
-        raise SystemExit(str(e)) from None
+        raise UsageError(str(e)) from None
 
 
 def _run(args) -> int:

@@ -39,40 +39,13 @@ class SequenceBatch:
 
     obs (L+1, B, stack, H, W) float32; actions (L, B) int64; rewards (L, B) float32;
     terminals (L, B) float32 (1 = collision, no bootstrap); mask (L, B) float32
-    (0 past the episode's end); labels (L, B, A) float32, a teacher's Q-values of each
-    step's observation (``rl.distill.LabelledReplay`` only; None otherwise).
+    (0 past the episode's end).
     """
     obs: np.ndarray
     actions: np.ndarray
     rewards: np.ndarray
     terminals: np.ndarray
     mask: np.ndarray
-    labels: np.ndarray | None = None
-
-    def mirrored(self, which: np.ndarray, mirror_of: np.ndarray) -> "SequenceBatch":
-        """A copy in which the windows ``which`` (bool (B,)) are seen in a left-right mirror.
-
-        Their frames are flipped along the image width, each action ``a`` becomes its
-        mirror image ``mirror_of[a]`` (the same speed, the opposite yaw rate;
-        ``rl.policies.mirror_permutation``), and a teacher's Q-value of action ``a``
-        becomes that of ``mirror_of[a]``. Rewards, terminals and the mask stay: a
-        mirrored flight is as good or as bad as the flight itself (the camera is
-        symmetric, and the reward reads distances, not directions). Training on such
-        copies (``TrainConfig.mirror_augment``) is our addition, not the paper's.
-        """
-        which = np.asarray(which, dtype=bool)
-        B = self.actions.shape[1]
-        if which.shape != (B,):
-            raise ValueError(f"SequenceBatch.mirrored: which must be a bool mask of the "
-                             f"{B} windows; got shape {which.shape}")
-        mirror_of = np.asarray(mirror_of, dtype=np.int64)
-        obs = self.obs.copy()
-        obs[:, which] = obs[:, which][..., ::-1]
-        actions = np.where(which[None, :], mirror_of[self.actions], self.actions)
-        labels = None
-        if self.labels is not None:
-            labels = np.where(which[None, :, None], self.labels[..., mirror_of], self.labels)
-        return SequenceBatch(obs, actions, self.rewards, self.terminals, self.mask, labels)
 
 
 class EpisodeReplay:

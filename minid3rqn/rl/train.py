@@ -1,112 +1,120 @@
-"""The training loop: many flights stepped together, one replay, one agent.
+"""Training a Q-network: many flights stepped together, one episodic replay, one agent.
 
-Per vector step (``n_envs`` flights at once):
+``train`` is the algorithm, one step per line block (``n_envs`` flights at once):
 
-    1. act: epsilon-greedy on the batched Q-net; the recurrent state advances for every
-       flight, and is zeroed for a flight that has just started a new episode;
-    2. step the flights; store (a, r, collision, o') in the flight's replay stream;
-       a finished flight (collision, or the 50-step limit: not terminal) restarts;
-    3. after ``learning_starts`` transitions, ``updates_per_step`` double-Q updates on
-       windows sampled from the replay.
+    1. act: epsilon-greedy on the online net; the recurrent state advances for every
+       flight (whichever action is taken), and is zeroed when a flight starts anew;
+    2. step the flights: one action each (0.4 s), reward (Eq. 4), next depth frame;
+    3. store (a, r, collision, o') in the flight's replay stream; a finished flight
+       (collision, or the 50-step limit: not terminal) restarts in a new world;
+    4. learn: after ``learning_starts`` transitions, ``updates_per_step`` double-Q
+       updates per step, each on ``batch_size`` windows of ``seq_len`` steps;
+    5. log a learning-curve row every ``log_every`` transitions;
+    6. checkpoint every ``checkpoint_every`` transitions.
 
 Everything random comes from ``seed``: the networks, the worlds, exploration and
 sampling. A checkpoint holds the agent (weights, target, Adam), the replay, the
-flights' state and every generator, so ``resume`` continues the exact same run.
+flights' state and every generator, so a resumed run is the run that was cut off.
 """
 from __future__ import annotations
 
 import csv
 import json
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..config import (as_dict, at_least, between, one_of, positive, setting, validate)
 from ..io import load_npz, save_npz
 from ..nets.qnet import QNetConfig
-from ..world import Camera
 from .agent import Agent, AgentConfig, FrameStacker
 from .flights import Flights, FlightsConfig
 from .replay import EpisodeReplay
 
+RECURRENT = ("ddrqn", "d3rqn")
+# A few hundred steps on a small net, for tests (train-agent --smoke).
+SMOKE = dict(steps=128, learning_starts=64, n_envs=8, log_every=64, checkpoint_every=1000,
+             hidden=16, replay_capacity=2000, eps_decay_steps=200, n_worlds=2)
+
+
+def _conv_channels(v):
+    return None if len(v) == 3 and all(c >= 1 for c in v) else "three numbers >= 1"
+
 
 @dataclass
 class TrainConfig:
-    variant: str = "d3rqn"         # ddqn | d3qn | ddrqn | d3rqn
-    stack: int = 1                 # frames per observation (5: the window as channels)
-    seq_len: int = 5               # paper, Table 4 (recurrent); non-recurrent use 1
-    scenario: str = "basic"
-    seed: int = 0
-    n_envs: int = 16               # ours: parallel flights
-    total_steps: int = 60_000      # ours: environment transitions (all flights)
-    learning_starts: int = 5_000   # ours
-    updates_per_step: float = 4.0  # ours: updates per vector step (16 transitions); 1.0 was
-                                   # 0.764 vs 0.871 for D3RQN (docs/results.md, budgets A, B)
-    batch_size: int = 32           # paper, Table 4
-    replay_capacity: int = 100_000  # ours: frames (uint8, ~340 MB)
-    eps_start: float = 1.0         # ours
-    eps_end: float = 0.05          # ours
-    eps_decay_steps: int = 50_000  # ours: transitions for the linear decay
-    hidden: int = 128              # ours: LSTM / FC width
-    conv_channels: list | None = None  # ours: out channels of the conv layers (None: the
-                                       # QNetConfig's 4, 8, 8; kernels and strides stay)
-    depth: str = "gt"              # gt | pred (the DispNet's depth maps)
-    horizon_row: float | None = None  # ours: the camera's horizon row (Camera.horizon_row;
-                                      # None: the middle row; docs/depth.md section 7)
-    log_every: int = 2_000         # transitions between learning-curve rows
-    checkpoint_every: int = 10_000  # transitions between checkpoints
-    init_model: str = ""           # start from these Q-net weights (fine-tuning), if set
-    init_widen: bool = False       # ours: init_model has a narrower LSTM; grow it to `hidden`
-                                   # units, same Q-values at the start (widen_recurrent_state)
-    # -- distillation (ours, optional; rl/distill.py): a teacher, on GT depth by default
-    teachers: str = ""             # '+'-joined Q-net files; set -> learn the teacher's Q-values
-    teacher_mix: float = 0.5       # probability of flying the teacher's action at the start,
-    teacher_mix_steps: int = 10_000  # decayed linearly to 0 over this many transitions
-    teacher_mirror: bool = False   # ours: each teacher net also flies the mirrored view
-    teacher_depth: str = "gt"      # ours: what the teacher reads: gt (privileged) | pred (the
-                                   # student's own frames: distilling nets that fly on them)
-    base_teachers: str = ""        # ours: in a mixed pool, a second teacher for the flights in
-                                   # the scenario's own worlds ('teachers' teach in the rest)
-    distil_kl: float = 0.0         # ours: weight of a KL term on the teacher's action
-                                   # preferences, softmax(Q_T / T), added to the Huber loss
-    distil_temperature: float = 0.1  # T of that term, in the units of the Q-values
-    mirror_augment: bool = False   # ours: learn from each sampled window mirrored left-right
-                                   # with probability 1/2 (SequenceBatch.mirrored)
-    average_last: int = 0          # ours: the saved model is the mean of the online weights
-                                   # after every update of the last this-many transitions
-                                   # (weight averaging, "SWA"; 0: the last weights)
-    agent: AgentConfig = field(default_factory=AgentConfig)
-    flights: FlightsConfig = field(default_factory=FlightsConfig)
+    # -- the paper's settings (Table 4; gamma, lr and the target update are the agent's)
+    batch_size: int = setting(32, "replay windows per update", source="paper",
+                              check=at_least(1))
+    seq_len: int | None = setting(None, "steps per replay window (5; none: 5 for the "
+                                        "recurrent variants, 1 for the others)",
+                                  source="paper", check=at_least(1))
+    agent: AgentConfig = setting(default_factory=AgentConfig)
+    # -- the budget (ours: scaled to a laptop)
+    steps: int = setting(60_000, "environment transitions (all flights)", source="budget",
+                         check=at_least(1))
+    learning_starts: int = setting(5_000, "transitions before the first update",
+                                   source="budget", check=at_least(0))
+    replay_capacity: int = setting(100_000, "frames in the replay (uint8, ~340 MB)",
+                                   source="budget", check=at_least(64))
+    eps_decay_steps: int = setting(50_000, "transitions over which epsilon falls",
+                                   source="budget", check=at_least(1))
+    hidden: int = setting(128, "LSTM / fully connected width", source="budget",
+                          check=at_least(1))
+    eps_start: float = setting(1.0, "epsilon at the start", source="budget",
+                               check=between(0, 1), cli="more")
+    eps_end: float = setting(0.05, "epsilon after eps_decay_steps", source="budget",
+                             check=between(0, 1), cli="more")
+    n_envs: int = setting(16, "flights stepped together", source="budget",
+                          check=at_least(1), cli="more")
+    updates_per_step: float = setting(4.0, "updates per step of all flights (1.0 gave 0.764 "
+                                           "against 0.871: docs/results.md)",
+                                      source="budget", check=positive, cli="more")
+    n_worlds: int = setting(32, "worlds in the training pool", source="budget",
+                            check=at_least(1), cli="more")
+    # -- the run
+    variant: str = setting("d3rqn", "the Q-network", source="run",
+                           choices=("ddqn", "d3qn", "ddrqn", "d3rqn"))
+    scenario: str = setting("basic", "the training worlds", source="run",
+                            choices=("basic", "channel", "intersections", "corners"))
+    seed: int = setting(0, "seeds the nets, the worlds, exploration and sampling",
+                        source="run")
+    depth: str = setting("gt", "what the Q-net reads: GT depth or the DispNet's",
+                         source="run", choices=("gt", "pred"))
+    init_model: str = setting("", "start from this Q-net .npz (fine-tuning)", source="run")
+    stack: int = setting(1, "frames per observation (5: a window as channels)",
+                         source="run", check=at_least(1), cli="more")
+    log_every: int = setting(2_000, "transitions between learning-curve rows",
+                             source="run", check=at_least(1), cli="more")
+    checkpoint_every: int = setting(10_000, "transitions between checkpoints",
+                                    source="run", check=at_least(1), cli="more")
+    # -- what the net is trained with, recorded in its file (evaluate and fly use it)
+    actions: list | None = setting(None, "the action table, (speed, yaw rate) rows "
+                                         "(none: the paper's Table 3)")
+    hfov_deg: float = setting(90.0, "the camera's horizontal field of view (degrees)",
+                              check=lambda v: None if 0 < v < 180 else "a number in (0, 180)")
+    conv_channels: list | None = setting(None, "out channels of the three conv layers "
+                                               "(none: 4,8,8)", check=_conv_channels)
 
     def __post_init__(self):
-        if isinstance(self.agent, dict):
-            self.agent = AgentConfig(**self.agent)
-        if isinstance(self.flights, dict):
-            self.flights = FlightsConfig(**self.flights)
+        if isinstance(self.actions, np.ndarray):
+            self.actions = self.actions.tolist()
+        validate(self)
+
+    def window(self) -> int:
+        """The replay windows' length: ``seq_len``, else 5 (recurrent) or 1."""
+        return self.seq_len or (5 if self.variant in RECURRENT else 1)
 
     def qnet_config(self, n_actions: int, frame_shape) -> QNetConfig:
         extra = {}
         if self.conv_channels is not None:
-            convs = QNetConfig().convs
-            chans = list(self.conv_channels)
-            if len(chans) != len(convs) or not all(
-                    isinstance(c, (int, np.integer)) and not isinstance(c, bool) and c >= 1
-                    for c in chans):
-                raise ValueError(f"TrainConfig: conv_channels must be {len(convs)} ints >= 1 "
-                                 f"(one per conv layer); got {self.conv_channels!r}")
-            extra["convs"] = [[int(c), k, s] for c, (_, k, s) in zip(chans, convs)]
+            extra["convs"] = [[int(c), k, s] for c, (_, k, s)
+                              in zip(self.conv_channels, QNetConfig().convs)]
         return QNetConfig.for_variant(self.variant, in_channels=self.stack,
                                       height=frame_shape[0], width_px=frame_shape[1],
                                       n_actions=n_actions, width=self.hidden, **extra)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "TrainConfig":
-        names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in d.items() if k in names})
 
 
 def epsilon_at(cfg: TrainConfig, step: int) -> float:
@@ -115,348 +123,252 @@ def epsilon_at(cfg: TrainConfig, step: int) -> float:
     return cfg.eps_start + frac * (cfg.eps_end - cfg.eps_start)
 
 
-def _rng_state(rng: np.random.Generator) -> str:
-    return json.dumps(rng.bit_generator.state)
+class Run:
+    """Everything a training run holds: the flights, the agent, the replay, the frame
+    stacks and recurrent state of the flights, the counters and the learning curve.
 
+    ``reward_fn``, ``depth_fn``: the flights' (``Flights``); ``td_target``: the agent's;
+    ``replay``: makes the replay, ``(capacity, n_streams, frame_shape, seed)``;
+    ``extra``: more state for the checkpoint, {name: object with ``state_dict`` and
+    ``load_state_dict``}."""
 
-def _set_rng_state(rng: np.random.Generator, s: str) -> None:
-    rng.bit_generator.state = json.loads(s)
-
-
-class WeightAverage:
-    """The running mean of a net's weights over snapshots (our addition).
-
-    Stochastic weight averaging (Izmailov et al. 2018): the weights at the end of training
-    still jump from update to update with the noise of each minibatch; their mean over many
-    late updates lies nearer the middle of the region they wander in, and often predicts
-    better than any one of them. For a net without batch statistics (ours) the mean is the
-    whole method. Sums are float64, so thousands of snapshots lose nothing.
-    """
-
-    def __init__(self):
-        self.sums: dict[str, np.ndarray] = {}
-        self.count = 0
-
-    def add(self, net) -> None:
-        for name, p in net.named_parameters():
-            if name in self.sums:
-                self.sums[name] += p.data
-            else:
-                self.sums[name] = p.data.astype(np.float64)
-        self.count += 1
-
-    def mean(self, net) -> dict[str, np.ndarray]:
-        """The mean weights, in each parameter's own dtype, named as ``net.state_dict()``."""
-        if self.count == 0:
-            raise RuntimeError("WeightAverage.mean: no snapshot has been added")
-        return {name: (self.sums[name] / self.count).astype(p.dtype)
-                for name, p in net.named_parameters()}
-
-    def load(self, sums: dict[str, np.ndarray], count: int) -> None:
-        self.sums = {k: np.asarray(v, dtype=np.float64).copy() for k, v in sums.items()}
-        self.count = int(count)
-
-
-class Trainer:
-    """Holds the run's state; ``run()`` trains to ``total_steps`` (resumable)."""
-
-    learns_from_teacher = False          # rl.distill.Distiller: True
-
-    def __init__(self, cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True):
-        if cfg.teachers and not self.learns_from_teacher:
-            raise ValueError("Trainer: cfg.teachers is set, which asks for distillation; "
-                             "use rl.distill.Distiller (or rl.train.train, which picks it)")
-        if (isinstance(cfg.average_last, bool) or not isinstance(cfg.average_last, (int, np.integer))
-                or not 0 <= cfg.average_last <= cfg.total_steps):
-            raise ValueError(f"Trainer: average_last (--average-last) is a number of "
-                             f"transitions in [0, total_steps = {cfg.total_steps}]; got "
-                             f"{cfg.average_last!r}")
-        for name, flag in (("seq_len", "--seq-len"), ("batch_size", "--batch-size")):
-            value = getattr(cfg, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"Trainer: {name} ({flag}) must be an int >= 1; got {value!r}")
-        self.cfg = cfg
-        self.out = Path(out_dir)
+    def __init__(self, cfg: TrainConfig, out_dir, depth_estimator=None, *, reward_fn=None,
+                 depth_fn=None, td_target=None, replay=EpisodeReplay, extra=None):
+        from ..world import Camera
+        self.cfg, self.out = cfg, Path(out_dir)
         self.out.mkdir(parents=True, exist_ok=True)
-        self.progress = progress
         ss = np.random.SeedSequence(cfg.seed)
         net_seed, world_seed, act_seed, replay_seed = (int(s.generate_state(1)[0])
                                                        for s in ss.spawn(4))
-        self.flights = Flights(cfg.scenario, cfg.n_envs, seed=world_seed, config=cfg.flights,
-                               depth=cfg.depth, depth_estimator=depth_estimator,
-                               camera=Camera(horizon_row=cfg.horizon_row))
-        self.frame_shape = self.flights.frame_shape
-        self.agent = Agent(cfg.qnet_config(self.flights.n_actions, self.frame_shape),
-                           cfg.agent, rng=net_seed)
-        if cfg.init_model and cfg.init_widen:
-            from ..nets.qnet import widen_recurrent_state
-            old, _ = load_npz(cfg.init_model)
-            self.agent.online.load_state_dict(
-                widen_recurrent_state(old, self.agent.online.state_dict()))
-            self.agent.target.copy_from(self.agent.online)
-        elif cfg.init_model:
-            self.agent.online.load(cfg.init_model)
-            self.agent.target.copy_from(self.agent.online)
-        self.replay = self.make_replay(replay_seed)
+        self.flights = Flights(cfg.scenario, cfg.n_envs, seed=world_seed,
+                               config=FlightsConfig(n_worlds=cfg.n_worlds), depth=cfg.depth,
+                               depth_estimator=depth_estimator,
+                               camera=Camera(hfov_deg=cfg.hfov_deg), actions=cfg.actions,
+                               reward_fn=reward_fn, depth_fn=depth_fn)
+        shape = self.flights.frame_shape
+        self.agent = Agent(cfg.qnet_config(self.flights.n_actions, shape), cfg.agent,
+                           rng=net_seed, td_target=td_target)
+        self.replay = replay(cfg.replay_capacity, cfg.n_envs, shape, seed=replay_seed)
         self.rng = np.random.default_rng(act_seed)
-        # a fifth stream for the mirror augmentation (the first four, hence every run
-        # without it, are unchanged by its existence)
-        self.aug_rng = np.random.default_rng(ss.spawn(1)[0])
-        self.mirror_of = None
-        if cfg.mirror_augment:
-            from .policies import mirror_permutation
-            try:
-                self.mirror_of = mirror_permutation(self.flights.actions)
-            except ValueError as e:
-                raise ValueError(f"TrainConfig.mirror_augment (--mirror-augment) needs a "
-                                 f"symmetric action table: {e}") from None
-        self.steps = 0
-        self.update_credit = 0.0
-        self.episodes = 0
-        self.averager = WeightAverage()
-        self.curve: list[dict] = []
-        self._window = {"returns": [], "success": [], "lengths": [], "loss": [], "q": []}
-        self._ret = np.zeros(cfg.n_envs)
-        self._len = np.zeros(cfg.n_envs, dtype=np.int64)
-        self._started = False
+        self.stacker = FrameStacker(cfg.n_envs, cfg.stack, shape)
         self.state = None
-        self.stacker = FrameStacker(cfg.n_envs, cfg.stack, self.frame_shape)
+        self.extra = dict(extra or {})
+        self.steps = self.episodes = 0
+        self.update_credit = 0.0
+        self.curve: list[dict] = []
+        self.notes: dict[str, list] = {}
+        self.returns = np.zeros(cfg.n_envs)
+        self.lengths = np.zeros(cfg.n_envs, dtype=np.int64)
 
-    def make_replay(self, seed) -> EpisodeReplay:
-        return EpisodeReplay(self.cfg.replay_capacity, self.cfg.n_envs, self.frame_shape,
-                             seed=seed)
-
-    # -- the loop -------------------------------------------------------------------
-    def _start(self):
+    def start(self) -> None:
+        """Every flight takes off; its first frame opens its replay stream."""
         frames = self.flights.reset()
         self.replay.start_episodes(np.arange(self.cfg.n_envs), frames)
         self.stacker.reset(np.arange(self.cfg.n_envs), frames)
         self.state = self.agent.initial_state(self.cfg.n_envs)
 
-    def choose_actions(self) -> np.ndarray:
-        """Step 1: epsilon-greedy on the online net; the recurrent state advances."""
-        eps = epsilon_at(self.cfg, self.steps)
-        actions, _, self.state = self.agent.act(self.stacker.obs, self.state, eps, self.rng)
-        return actions
+    def note(self, key: str, value: float) -> None:
+        """A number for the next learning-curve row (the mean of those noted)."""
+        self.notes.setdefault(key, []).append(float(value))
 
-    def episodes_ended(self, done: np.ndarray) -> None:
-        """Flights in ``done`` (bool (n,)) start a new episode: zero their state."""
-        self.state = self.agent.reset_state(self.state, done)
+    def episodes_end(self, res, done: np.ndarray) -> None:
+        """Note the finished flights' return, success and length; count the rest."""
+        self.returns += res.rewards
+        self.lengths += 1
+        for i in np.flatnonzero(done):
+            self.note("return", self.returns[i])
+            self.note("success", res.success[i])
+            self.note("length", self.lengths[i])
+        self.returns[done], self.lengths[done] = 0, 0
+        self.episodes += int(done.sum())
 
-    def learn(self, batch) -> dict:
-        """Step 3: one double-Q update on a window batch."""
-        return self.agent.update(batch)
-
-    def vector_step(self):
-        cfg = self.cfg
-        actions = self.choose_actions()
-        res = self.flights.step(actions)
-        done = res.terminated | res.truncated
-        self.replay.add_step(actions, res.rewards, res.terminated, res.truncated,
-                             res.final_frames)
-        self._ret += res.rewards
-        self._len += 1
-        if done.any():
-            idx = np.flatnonzero(done)
-            for i in idx:
-                self._window["returns"].append(float(self._ret[i]))
-                self._window["success"].append(float(res.success[i]))
-                self._window["lengths"].append(int(self._len[i]))
-            self._ret[idx] = 0
-            self._len[idx] = 0
-            self.episodes += len(idx)
-            self.replay.start_episodes(idx, res.frames[idx])
-            self.episodes_ended(done)
-        live = np.flatnonzero(~done)
-        self.stacker.push(res.frames[live], live)
-        if done.any():
-            self.stacker.reset(np.flatnonzero(done), res.frames[done])
-        self.steps += cfg.n_envs
-        if self.steps >= cfg.learning_starts:
-            self.update_credit += cfg.updates_per_step
-            while self.update_credit >= 1.0:
-                self.update_credit -= 1.0
-                batch = self.replay.sample(cfg.batch_size, cfg.seq_len, cfg.stack)
-                if self.mirror_of is not None:
-                    which = self.aug_rng.random(batch.actions.shape[1]) < 0.5
-                    batch = batch.mirrored(which, self.mirror_of)
-                info = self.learn(batch)
-                if self.steps > cfg.total_steps - cfg.average_last:
-                    self.averager.add(self.agent.online)
-                self._window["loss"].append(info["loss"])
-                self._window["q"].append(info["q_mean"])
-
-    def _log_row(self, elapsed: float):
-        w = self._window
+    def log_row(self, seconds: float) -> dict:
+        mean = {k: float(np.mean(v)) if v else float("nan") for k, v in self.notes.items()}
         row = {"steps": self.steps, "updates": self.agent.updates, "episodes": self.episodes,
-               "epsilon": round(epsilon_at(self.cfg, self.steps), 4),
-               "return": float(np.mean(w["returns"])) if w["returns"] else float("nan"),
-               "success": float(np.mean(w["success"])) if w["success"] else float("nan"),
-               "length": float(np.mean(w["lengths"])) if w["lengths"] else float("nan"),
-               "loss": float(np.mean(w["loss"])) if w["loss"] else float("nan"),
-               "q_mean": float(np.mean(w["q"])) if w["q"] else float("nan"),
-               "seconds": round(elapsed, 1), **self.extra_row()}
+               "epsilon": round(epsilon_at(self.cfg, self.steps), 4)}
+        for key in ("return", "success", "length", "loss", "q_mean"):
+            row[key] = mean.pop(key, float("nan"))
+        row.update(mean)
+        row["seconds"] = round(seconds, 1)
         self.curve.append(row)
-        for v in w.values():
-            v.clear()
+        self.notes = {k: [] for k in self.notes}
         self.write_curve()
         return row
 
-    def extra_row(self) -> dict:
-        """More learning-curve columns (a subclass's); reads ``self._window`` before it is
-        cleared."""
-        return {}
-
-    def write_curve(self):
-        if not self.curve:
-            return
-        path = self.out / "curve.csv"
-        with open(path, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(self.curve[0]))
+    def write_curve(self) -> None:
+        keys = list(dict.fromkeys(k for row in self.curve for k in row))
+        with open(self.out / "curve.csv", "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=keys, restval="")
             writer.writeheader()
             writer.writerows(self.curve)
         try:
             from ..viz import learning_curve_png
-            learning_curve_png(self.curve, self.out / "curve.png",
-                               title=f"{self.cfg.variant} on {self.cfg.scenario}, seed {self.cfg.seed}")
+            learning_curve_png(self.curve, self.out / "curve.png", title=f"{self.cfg.variant} "
+                               f"on {self.cfg.scenario}, seed {self.cfg.seed}")
         except Exception as e:  # a plotting problem must never stop a training run
             print(f"warning: learning-curve PNG not written: {e}")
 
-    def run(self, until: int | None = None) -> dict:
-        cfg = self.cfg
-        until = cfg.total_steps if until is None else min(until, cfg.total_steps)
-        if not self._started:
-            self._start()
-            self._started = True
-        t0 = time.time() - (self.curve[-1]["seconds"] if self.curve else 0.0)
-        bar = None
-        if self.progress:
-            from tqdm import tqdm
-            bar = tqdm(total=cfg.total_steps, initial=self.steps, unit="step",
-                       desc=f"train {cfg.variant}", dynamic_ncols=True)
-        next_log = (self.steps // cfg.log_every + 1) * cfg.log_every
-        next_ckpt = (self.steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
-        while self.steps < until:
-            self.vector_step()
-            if bar is not None:
-                bar.update(cfg.n_envs)
-            if self.steps >= next_log:
-                row = self._log_row(time.time() - t0)
-                next_log += cfg.log_every
-                if bar is not None:
-                    bar.set_postfix(success=f"{row['success']:.2f}", ret=f"{row['return']:.1f}",
-                                    eps=f"{row['epsilon']:.2f}")
-            if self.steps >= next_ckpt:
-                self.save_checkpoint()
-                next_ckpt += cfg.checkpoint_every
-                if bar is None:           # no bar (--quiet, parallel runs): one line instead
-                    self._report_line(time.time() - t0)
-        if bar is not None:
-            bar.close()
-        self.save_checkpoint()
-        return self.curve[-1] if self.curve else {}
+    # -- files ---------------------------------------------------------------------------
+    def save_model(self, path, extra: dict | None = None) -> Path:
+        """The online weights, with how they were trained (``train_config``: evaluate and
+        fly read its action table and camera)."""
+        meta = {"kind": "qnet", "qnet_config": self.agent.qnet_config.to_dict(),
+                "train_config": as_dict(self.cfg), "steps": self.steps,
+                "updates": self.agent.updates, **(extra or {})}
+        return self.agent.online.save(path, meta)
 
-    def _report_line(self, seconds: float) -> None:
-        last = self.curve[-1] if self.curve else {}
-        success = f", success {last['success']:.2f}" if "success" in last else ""
-        print(f"{self.out.name}: {self.steps}/{self.cfg.total_steps} steps{success}, "
-              f"{seconds:.0f} s", flush=True)
-
-    # -- checkpoints ----------------------------------------------------------------
-    def save_checkpoint(self, path=None) -> Path:
-        path = Path(path or self.out / "checkpoint.npz")
-        arrays = {f"agent.{k}": v for k, v in self.agent.state_dict().items()}
-        arrays.update({f"replay.{k}": v for k, v in self.replay.state_dict().items()})
-        arrays.update({f"flights.{k}": v for k, v in self.flights.state_dict().items()})
-        arrays["stacker"] = self.stacker.buf
-        arrays["ret"] = self._ret
-        arrays["len"] = self._len
+    def save_checkpoint(self) -> Path:
+        parts = {"agent": self.agent, "replay": self.replay, "flights": self.flights,
+                 **self.extra}
+        arrays = {f"{name}.{k}": v for name, part in parts.items()
+                  for k, v in part.state_dict().items()}
+        arrays.update(stacker=self.stacker.buf, returns=self.returns, lengths=self.lengths)
         if self.state is not None:
             arrays["state_h"], arrays["state_c"] = self.state[0].data, self.state[1].data
-        arrays.update(self.extra_state())
-        arrays.update({f"average.{k}": v for k, v in self.averager.sums.items()})
-        meta = {"config": self.cfg.to_dict(), "steps": self.steps, "episodes": self.episodes,
-                "average_count": self.averager.count,
-                "update_credit": self.update_credit, "curve": self.curve,
-                "window": self._window, "rng": _rng_state(self.rng),
-                "replay_rng": _rng_state(self.replay.rng), "aug_rng": _rng_state(self.aug_rng),
+        meta = {"config": as_dict(self.cfg), "steps": self.steps, "episodes": self.episodes,
+                "update_credit": self.update_credit, "curve": self.curve, "notes": self.notes,
+                "rng": json.dumps(self.rng.bit_generator.state),
+                "replay_rng": json.dumps(self.replay.rng.bit_generator.state),
                 "flights_meta": self.flights.meta_state()}
-        save_npz(path, arrays, meta)
+        path = save_npz(self.out / "checkpoint.npz", arrays, meta)
         self.save_model(self.out / "model.npz")
         return path
 
-    def save_model(self, path, extra: dict | None = None) -> Path:
-        """The model file: the online weights; with weight averaging under way, the mean
-        so far (``average_last``), and the online weights beside it as ``model_last.npz``
-        so the two can be flown against each other."""
-        meta = {"kind": "qnet", "qnet_config": self.agent.qnet_config.to_dict(),
-                "train_config": self.cfg.to_dict(), "steps": self.steps,
-                "updates": self.agent.updates, **(extra or {})}
-        if self.averager.count == 0:
-            return self.agent.online.save(path, meta)
-        path = Path(path)
-        self.agent.online.save(path.with_name(path.stem + "_last.npz"),
-                               {**meta, "weights": "the last update's (online)"})
-        meta["weights"] = (f"the mean after each of the last {self.averager.count} updates "
-                           f"(--average-last {self.cfg.average_last})")
-        meta["averaged_updates"] = self.averager.count
-        return save_npz(path, self.averager.mean(self.agent.online), meta)
-
-    def extra_state(self) -> dict[str, np.ndarray]:
-        """More arrays for the checkpoint (a subclass's), given back to ``load_extra_state``."""
-        return {}
-
-    def load_extra_state(self, arrays: dict[str, np.ndarray]) -> None:
-        pass
-
-    @classmethod
-    def resume(cls, out_dir, depth_estimator=None, progress: bool = True,
-               total_steps: int | None = None) -> "Trainer":
+    def load_checkpoint(self) -> None:
+        """Continue from ``out_dir/checkpoint.npz`` (made with these settings but
+        ``steps``; ValueError otherwise)."""
         from ..autograd import Tensor
-        arrays, meta = load_npz(Path(out_dir) / "checkpoint.npz")
-        cfg = TrainConfig.from_dict(meta["config"])
-        if total_steps is not None:
-            cfg.total_steps = total_steps
-        tr = cls(cfg, out_dir, depth_estimator=depth_estimator, progress=progress)
+        arrays, meta = load_npz(self.out / "checkpoint.npz")
+        mine, theirs = as_dict(self.cfg), {**meta["config"], "steps": self.cfg.steps}
+        changed = sorted(k for k in mine if mine[k] != theirs.get(k))
+        if changed:
+            raise ValueError(f"resume: the checkpoint in {str(self.out)!r} was made with other "
+                             f"settings ({', '.join(changed)}); give the run's own (its "
+                             f"model file records its command)")
 
         def part(prefix):
-            return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
-        tr.agent.load_state_dict(part("agent."))
-        tr.replay.load_state_dict(part("replay."))
-        tr.flights.load_state_dict(part("flights."), meta["flights_meta"])
-        tr.stacker.buf[...] = arrays["stacker"]
-        tr._ret[...] = arrays["ret"]
-        tr._len[...] = arrays["len"]
+            return {k[len(prefix) + 1:]: v for k, v in arrays.items()
+                    if k.startswith(prefix + ".")}
+        self.agent.load_state_dict(part("agent"))
+        self.replay.load_state_dict(part("replay"))
+        self.flights.load_state_dict(part("flights"), meta["flights_meta"])
+        for name, obj in self.extra.items():
+            obj.load_state_dict(part(name))
+        self.stacker.buf[...] = arrays["stacker"]
+        self.returns[...], self.lengths[...] = arrays["returns"], arrays["lengths"]
         if "state_h" in arrays:
-            tr.state = (Tensor(arrays["state_h"].copy()), Tensor(arrays["state_c"].copy()))
-        tr.load_extra_state(arrays)
-        tr.averager.load(part("average."), meta.get("average_count", 0))
-        tr.steps, tr.episodes = meta["steps"], meta["episodes"]
-        tr.update_credit = meta["update_credit"]
-        tr.curve = meta["curve"]
-        tr._window = meta["window"]
-        _set_rng_state(tr.rng, meta["rng"])
-        _set_rng_state(tr.replay.rng, meta["replay_rng"])
-        if "aug_rng" in meta:                # checkpoints before the fourteenth session
-            _set_rng_state(tr.aug_rng, meta["aug_rng"])
-        tr._started = True
-        return tr
+            self.state = (Tensor(arrays["state_h"].copy()), Tensor(arrays["state_c"].copy()))
+        self.steps, self.episodes = meta["steps"], meta["episodes"]
+        self.update_credit, self.curve, self.notes = (meta["update_credit"], meta["curve"],
+                                                      meta["notes"])
+        self.rng.bit_generator.state = json.loads(meta["rng"])
+        self.replay.rng.bit_generator.state = json.loads(meta["replay_rng"])
 
 
-def train(cfg: TrainConfig, out_dir, depth_estimator=None, progress: bool = True,
-          resume: bool = False) -> Trainer:
-    """Train (or resume, if ``resume`` and a checkpoint exists) and return the trainer."""
-    cls = Trainer
-    if cfg.teachers:                      # distillation from a privileged teacher
-        from .distill import Distiller
-        cls = Distiller
-    ckpt = Path(out_dir) / "checkpoint.npz"
-    if resume and ckpt.exists():
-        tr = cls.resume(out_dir, depth_estimator, progress, total_steps=cfg.total_steps)
-    else:
-        tr = cls(cfg, out_dir, depth_estimator, progress)
-    tr.run()
-    return tr
+def epsilon_greedy(run: Run) -> np.ndarray:
+    """Step 1 of the paper's loop: epsilon-greedy actions on the online net, the
+    recurrent state advanced for every flight."""
+    eps = epsilon_at(run.cfg, run.steps)
+    actions, _, run.state = run.agent.act(run.stacker.obs, run.state, eps, run.rng)
+    return actions
 
 
-__all__ = ["TrainConfig", "Trainer", "WeightAverage", "train", "epsilon_at"]
+def double_q_update(run: Run, batch) -> dict:
+    """Step 4 of the paper's loop: one double-Q update on a batch of windows."""
+    return run.agent.update(batch)
+
+
+def start_run(cfg: TrainConfig, out_dir, depth_estimator=None, resume: bool = False,
+              load_init=None, **kwargs) -> Run:
+    """A new run (the online net from ``cfg.init_model`` if set, read by
+    ``load_init(agent, path)`` if given), or with ``resume`` the run in ``out_dir``
+    continued from its checkpoint, if it has one. ``kwargs``: Run's."""
+    run = Run(cfg, out_dir, depth_estimator, **kwargs)
+    if resume and (run.out / "checkpoint.npz").is_file():
+        run.load_checkpoint()
+        return run
+    if cfg.init_model:
+        if load_init is None:
+            run.agent.online.load(cfg.init_model)
+        else:
+            load_init(run.agent, cfg.init_model)
+        run.agent.target.copy_from(run.agent.online)
+    run.start()
+    return run
+
+
+def train(cfg: TrainConfig, out_dir, depth_estimator=None, *, reward_fn=None, depth_fn=None,
+          td_target=None, progress: bool = True, resume: bool = False, run: Run | None = None,
+          act=epsilon_greedy, learn=double_q_update) -> Run:
+    """Train a Q-net as the module docstring says; returns the run (``run.agent.online``
+    is the net; ``out_dir`` holds model.npz, checkpoint.npz and the learning curve).
+
+    ``depth_estimator``: the DispNet for ``cfg.depth="pred"``. ``reward_fn(d_nearest,
+    collided[, yaw_rate])``: the reward (default the paper's Eq. 4); ``depth_fn(depth,
+    rng)``: a change of every depth map the Q-net sees; ``td_target``: the TD target
+    (default ``agent.double_q_targets``). ``resume``: continue the run in ``out_dir``
+    from its checkpoint. A method built on this loop passes its own ``run`` (made by
+    ``start_run``) and steps 1 and 4 (``act(run) -> actions``, ``learn(run, batch) ->
+    {"loss", "q_mean", ...}``)."""
+    if run is None:
+        run = start_run(cfg, out_dir, depth_estimator, resume, reward_fn=reward_fn,
+                        depth_fn=depth_fn, td_target=td_target)
+    cfg = run.cfg
+    t0 = time.time() - (run.curve[-1]["seconds"] if run.curve else 0.0)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=cfg.steps, initial=run.steps, unit="step", dynamic_ncols=True,
+                   desc=f"train {cfg.variant}")
+    next_log = (run.steps // cfg.log_every + 1) * cfg.log_every
+    next_checkpoint = (run.steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+    while run.steps < cfg.steps:
+        # 1. act
+        actions = act(run)
+        # 2. step the flights
+        res = run.flights.step(actions)
+        done = res.terminated | res.truncated
+        # 3. store the transitions; a finished flight starts a new episode
+        run.replay.add_step(actions, res.rewards, res.terminated, res.truncated,
+                            res.final_frames)
+        run.episodes_end(res, done)
+        if done.any():
+            run.replay.start_episodes(np.flatnonzero(done), res.frames[done])
+            run.state = run.agent.reset_state(run.state, done)
+        run.stacker.push(res.frames[~done], np.flatnonzero(~done))
+        if done.any():
+            run.stacker.reset(np.flatnonzero(done), res.frames[done])
+        run.steps += cfg.n_envs
+        # 4. learn from windows of the replay
+        if run.steps >= cfg.learning_starts:
+            run.update_credit += cfg.updates_per_step
+            while run.update_credit >= 1.0:
+                run.update_credit -= 1.0
+                info = learn(run, run.replay.sample(cfg.batch_size, cfg.window(), cfg.stack))
+                run.note("loss", info["loss"])
+                run.note("q_mean", info["q_mean"])
+        if bar is not None:
+            bar.update(cfg.n_envs)
+        # 5. log
+        if run.steps >= next_log:
+            row = run.log_row(time.time() - t0)
+            next_log += cfg.log_every
+            if bar is not None:
+                bar.set_postfix(success=f"{row['success']:.2f}", ret=f"{row['return']:.1f}",
+                                eps=f"{row['epsilon']:.2f}")
+        # 6. checkpoint
+        if run.steps >= next_checkpoint:
+            run.save_checkpoint()
+            next_checkpoint += cfg.checkpoint_every
+            if bar is None:                   # no bar: one line per checkpoint instead
+                success = run.curve[-1]["success"] if run.curve else float("nan")
+                print(f"{run.out.name}: {run.steps}/{cfg.steps} steps, success "
+                      f"{success:.2f}, {time.time() - t0:.0f} s", flush=True)
+    if bar is not None:
+        bar.close()
+    run.save_checkpoint()
+    return run
+
+
+__all__ = ["TrainConfig", "Run", "SMOKE", "train", "start_run", "epsilon_at", "epsilon_greedy",
+           "double_q_update"]

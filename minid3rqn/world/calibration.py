@@ -12,7 +12,6 @@ Command used for docs/world.md:
 from __future__ import annotations
 
 import argparse
-import json
 import time
 
 import numpy as np
@@ -96,19 +95,16 @@ def calibrate(scenarios=SCENARIOS, n_flights: int = 2000, seed: int = 0, policie
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The command-line options (also used by ``python -m minid3rqn calibrate``)."""
     parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
-    parser.add_argument("--policies", nargs="+", default=list(POLICIES), choices=POLICIES)
-    parser.add_argument("--n-flights", type=int, default=2000)
+    parser.add_argument("--n-flights", type=int, default=2000, help="flights per cell")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default=None, help="write the results as JSON here")
 
 
 def run(args) -> int:
-    """Run the calibration for parsed ``args``; print a line per cell, optionally save."""
-    results = calibrate(args.scenarios, args.n_flights, args.seed, args.policies, verbose=True)
-    if args.out:
-        with open(args.out, "w") as f:
-            json.dump({"n_flights": args.n_flights, "seed": args.seed, "results": results}, f,
-                      indent=1)
+    """Run the calibration for parsed ``args``; print a line per cell."""
+    from ..config import UsageError
+    if args.n_flights < 1:
+        raise UsageError(f"--n-flights: expected a number >= 1; got {args.n_flights}")
+    calibrate(args.scenarios, args.n_flights, args.seed, verbose=True)
     return 0
 
 

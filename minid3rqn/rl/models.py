@@ -1,0 +1,200 @@
+"""Model files: the shipped ones, and what a Q-net file says about how to fly it.
+
+A Q-net file (``.npz``, written by ``rl.train``) holds the weights and, as metadata, the
+network's shape (``qnet_config``) and the run's settings (``train_config``): among them
+the action table and the camera's field of view it was trained with. A net is flown
+with those, or it reads frames and picks actions it never learned.
+
+    load_policy("straight" | "random" | "reactive" | "oracle" | "A.npz" | "A.npz+B.npz")
+    trained_actions(meta), trained_camera(meta)   the action table and camera of a file
+    shipped_depth_model("basic")                  minid3rqn/models/depth_basic.npz
+    load_depth_estimator(path, flip=False)        a DispNet to fly on predicted depth
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+MODELS = Path(__file__).resolve().parent.parent / "models"
+SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
+# The shipped Q-nets by name (fly --model NAME): the paper's training (the default), and
+# our distilled student (reproduce --recipe distil; docs/experiments.md).
+SHIPPED_QNETS = {"paper": SHIPPED_QNET, "distil": MODELS / "d3rqn_distil.npz"}
+BASELINES = ("straight", "random", "reactive", "oracle")
+VARIANT_NAMES = {"ddqn": "DDQN", "d3qn": "D3QN", "ddrqn": "DDRQN", "d3rqn": "D3RQN"}
+
+
+def shipped_depth_model(scenario: str = "basic") -> Path:
+    """The shipped DispNet of ``scenario``: minid3rqn/models/depth_<scenario>.npz."""
+    return MODELS / f"depth_{scenario}.npz"
+
+
+def load_depth_estimator(path, flip: bool = False):
+    """The DispNet at ``path`` as a depth estimator; ``flip``: also on the mirrored frame,
+    the two disparities averaged (ours)."""
+    from ..depth.evaluate import DepthEstimator
+    return DepthEstimator.load(path, flip=flip)
+
+
+def depth_estimator_for(depth: str, depth_model=None, scenario: str = "basic",
+                        flip: bool = False):
+    """None for ``depth="gt"``; for "pred" the DispNet ``depth_model`` (default: the
+    shipped one of ``scenario``). FileNotFoundError if there is none."""
+    if depth != "pred":
+        return None
+    path = Path(depth_model) if depth_model else shipped_depth_model(scenario)
+    if not path.is_file():
+        raise FileNotFoundError(f"depth model {str(path)!r} not found; train one with "
+                                f"`python -m minid3rqn train-depth --scenario {scenario}` or "
+                                f"fly on --depth gt")
+    return load_depth_estimator(path, flip)
+
+
+# -- what a Q-net file records ------------------------------------------------------------
+def _trained(meta: dict | None) -> dict:
+    return (meta or {}).get("train_config") or {}
+
+
+def trained_actions(meta: dict | None) -> np.ndarray:
+    """The action table (A, 2) a Q-net was trained with (the paper's Table 3 if the
+    file records none)."""
+    from ..world import ACTIONS
+    actions = _trained(meta).get("actions")
+    return ACTIONS.copy() if actions is None else np.asarray(actions, dtype=np.float64)
+
+
+def trained_camera(meta: dict | None):
+    """The camera a Q-net was trained with (90 degrees wide if the file records none)."""
+    from ..world import Camera
+    return Camera(hfov_deg=float(_trained(meta).get("hfov_deg", 90.0)))
+
+
+def unfinished_warning(policy) -> str | None:
+    """A warning if a Q-net file is a snapshot of a run that had not finished (a run
+    rewrites model.npz at every checkpoint)."""
+    for m in getattr(policy, "members", [policy]):
+        meta = getattr(m, "meta", None) or {}
+        trained = _trained(meta)
+        done, total = meta.get("steps"), trained.get("steps", trained.get("total_steps"))
+        if done is not None and total is not None and done < total:
+            return (f"warning: Q-net {m.name!r} is a snapshot at {done} of its run's {total} "
+                    f"transitions (its training had not finished when it was saved)")
+    return None
+
+
+# -- policies by name ----------------------------------------------------------------------
+def load_qnet_policy(path):
+    """A Q-net file as a greedy ``QNetPolicy`` named by its variant (D3RQN, D3QN-stack5...)."""
+    from ..nets.qnet import variant_name
+    from .policies import QNetPolicy
+    pol = QNetPolicy.load(path)
+    cfg = pol.qnet.config
+    pol.name = VARIANT_NAMES[variant_name(cfg)] + (f"-stack{cfg.in_channels}"
+                                                   if cfg.in_channels > 1 else "")
+    return pol
+
+
+def load_policy(spec: str, seed: int = 0, mirror: bool = False):
+    """'straight' | 'random' | 'reactive' | 'oracle' | a Q-net .npz | Q-net files joined by
+    '+' (an ensemble, greedy on their mean Q-values; ours). ``mirror`` (ours): every Q-net
+    also flies the mirrored view (``rl.mirror``), and the policy is the ensemble of all.
+    The baselines fly the world's action table. ValueError for a bad spec."""
+    from ..world import ACTIONS
+    from .mirror import MirroredPolicy
+    from .policies import (EnsemblePolicy, OraclePolicy, RandomPolicy, ReactivePolicy,
+                           StraightPolicy)
+    baselines = {"straight": StraightPolicy, "oracle": OraclePolicy,
+                 "random": lambda: RandomPolicy(len(ACTIONS), seed=seed),
+                 "reactive": lambda: ReactivePolicy(ACTIONS)}
+    if spec in baselines:
+        return baselines[spec]()
+    parts = spec.split("+")
+    for part in parts:
+        if part in BASELINES or not Path(part).is_file():
+            raise ValueError(f"{spec!r}: expected a baseline ({', '.join(BASELINES)}), a "
+                             f"Q-net .npz file, or Q-net files joined by '+'; {part!r} is not "
+                             f"a Q-net file")
+    members = [load_qnet_policy(p) for p in parts]
+    if not mirror:
+        return members[0] if len(members) == 1 else EnsemblePolicy(members)
+    names = "+".join(sorted({m.name for m in members}))
+    suffix = f"-ens{len(parts)}-mirror" if len(parts) > 1 else "-mirror"
+    return EnsemblePolicy(members + [MirroredPolicy(m) for m in members], name=names + suffix)
+
+
+def actions_and_camera(*policies):
+    """The action table and camera policies fly with: their Q-nets' (they must agree;
+    ValueError if not), else the world's."""
+    from ..world import ACTIONS, Camera
+    nets = [m for p in policies for m in getattr(p, "members", [p]) if hasattr(m, "meta")]
+    if not nets:
+        return ACTIONS.copy(), Camera()
+    actions, camera = trained_actions(nets[0].meta), trained_camera(nets[0].meta)
+    for m in nets[1:]:
+        a, c = trained_actions(m.meta), trained_camera(m.meta)
+        if a.shape != actions.shape or not np.allclose(a, actions) or c != camera:
+            raise ValueError(f"{m.name!r} was trained with another action table or camera "
+                             f"than {nets[0].name!r}; fly nets of one setting together")
+    return actions, camera
+
+
+# -- writing a trained Q-net ------------------------------------------------------------------
+def command_for(cfg, out, depth_model=None) -> str:
+    """The command that trains ``cfg`` (a TrainConfig: train-agent; a DistilConfig:
+    distil) into the folder ``out``: what a model file records."""
+    from ..config import command_line
+    from .distill import DISTIL_OPTIONS, DistilConfig
+    from .train import TrainConfig
+    if isinstance(cfg, DistilConfig):
+        words = ["distil", *command_line(DistilConfig, cfg, main=DISTIL_OPTIONS)]
+    else:
+        words = ["train-agent", *command_line(TrainConfig, cfg)]
+    if depth_model:
+        words += ["--depth-model", str(depth_model)]
+    return "python -m minid3rqn " + " ".join(words + ["--out", str(out)])
+
+
+def save_trained(run, command: str, depth_model=None, seconds: float | None = None,
+                 **extra) -> Path:
+    """The run's model.npz, recording the command that makes it, its seed, the depth
+    model it read and the machine it ran on."""
+    from ..io import machine
+    meta = {"command": command, "seed": run.cfg.seed, "depth_model": str(depth_model or ""),
+            "machine": machine(), **extra}
+    if seconds is not None:
+        meta["train_seconds"] = round(seconds, 1)
+    return run.save_model(run.out / "model.npz", meta)
+
+
+# -- recorded results (the JSON beside a shipped model) --------------------------------------
+def recorded_result(model, scenario: str, depth: str, mirror: bool = False,
+                    flip_tta: bool = False) -> dict | None:
+    """The largest evaluation of ``scenario`` on ``depth`` depth recorded in the JSON beside
+    a model file (its ``evaluations``), flown as asked: with the mirror image and the
+    DispNet's flip or without (a row without those keys was flown without them)."""
+    path = Path(model).with_suffix(".json")
+    if not path.is_file():
+        return None
+    rows = [r for r in json.loads(path.read_text()).get("evaluations", [])
+            if r.get("scenario") == scenario and r.get("depth") == depth
+            and r.get("mirror", False) == mirror and r.get("flip_tta", False) == flip_tta]
+    return max(rows, key=lambda r: r["flights"]) if rows else None
+
+
+def recorded_text(row: dict) -> str:
+    """One recorded evaluation in words: the rate, Wilson's interval by flight, and the
+    interval by world when the row has it."""
+    text = f"{row['rate']:.3f}, 95% CI [{row['ci95'][0]:.3f}, {row['ci95'][1]:.3f}] by flight"
+    if row.get("ci95_by_world"):
+        lo, hi = row["ci95_by_world"]
+        text += f", [{lo:.3f}, {hi:.3f}] by world ({row['worlds']} worlds)"
+    return text + f", over {row['flights']} flights (seed {row['seed']})"
+
+
+__all__ = ["MODELS", "SHIPPED_QNET", "SHIPPED_QNETS", "BASELINES", "VARIANT_NAMES",
+           "shipped_depth_model", "load_depth_estimator", "depth_estimator_for",
+           "trained_actions", "trained_camera", "unfinished_warning", "load_qnet_policy",
+           "load_policy", "actions_and_camera", "command_for", "save_trained",
+           "recorded_result", "recorded_text"]
