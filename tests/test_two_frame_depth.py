@@ -10,6 +10,7 @@ from minid3rqn.depth.data import Sequence, collect
 from minid3rqn.depth.evaluate import DepthEstimator, evaluate
 from minid3rqn.depth.train import TrainConfig, Trainer
 from minid3rqn.nets.dispnet import DispNet
+from minid3rqn.nets.fast import DispNetInference
 from minid3rqn.rl.flights import Flights, FlightsConfig
 from minid3rqn.world import Camera, render_batch
 
@@ -35,7 +36,7 @@ def test_input_channels_and_the_fast_path():
     net = DispNet((8, 16), (8, 8), 2, rng=0, in_frames=2)
     x = np.random.default_rng(0).random((3, 6, 16, 24)).astype(np.float32)
     d = net(x, scales=1)[0].data[:, 0]
-    fast = net.inference()(np.ascontiguousarray(x.transpose(0, 2, 3, 1)))
+    fast = DispNetInference(net)(np.ascontiguousarray(x.transpose(0, 2, 3, 1)))
     np.testing.assert_allclose(fast, d, rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match=r"\(N, 6, H, W\)"):
         net(x[:, :3])

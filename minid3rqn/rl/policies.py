@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from ..nets.fast import qnet_step
 from ..nets.qnet import QNet, QNetConfig
 from .agent import Agent, FrameStacker
 
@@ -259,7 +260,7 @@ class QNetPolicy(Policy):
                     q.data[rows] = qj.data[-1]
         else:
             with no_grad():
-                q, self.state = self.qnet.step(self.stacker.obs, self.state)
+                q, self.state = qnet_step(self.qnet, self.stacker.obs, self.state)
         self.last_q = q.data[:, self.mirror_of] if self.mirror else q.data
         actions = np.argmax(self.last_q, axis=1).astype(np.int64)
         if self.epsilon > 0:
