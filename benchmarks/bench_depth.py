@@ -41,6 +41,7 @@ def _child(threads: int, repeat: int) -> dict:
     from minid3rqn.autograd.optim import Adam
     from minid3rqn.depth.losses import view_synthesis_loss
     from minid3rqn.depth.train import TrainConfig, build_nets
+    from minid3rqn.nets.fast import DispNetInference
     from minid3rqn.world import Camera
 
     cfg = TrainConfig()
@@ -66,7 +67,7 @@ def _child(threads: int, repeat: int) -> dict:
 
     frames = rng.random((64, 3, h, w)).astype(np.float32)
     frames_nhwc = np.ascontiguousarray(frames.transpose(0, 2, 3, 1))
-    fast = disp.inference()                  # a snapshot: build it before training steps
+    fast = DispNetInference(disp)            # a snapshot: build it before training steps
 
     def ours_infer():
         fast(frames_nhwc)

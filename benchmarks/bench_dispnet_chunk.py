@@ -3,7 +3,7 @@
     python benchmarks/bench_dispnet_chunk.py                     # chunks 1,2,4,8,16,32,64
     python benchmarks/bench_dispnet_chunk.py --chunks 4,8,16 --frames 512 --repeat 7
 
-``DispNetInference`` (nets/dispnet.py) runs a large batch ``chunk`` frames at a time
+``DispNetInference`` (nets/fast.py) runs a large batch ``chunk`` frames at a time
 (default 8), so that its buffers (about 1 MB per frame at 32x104) stay in the CPU
 caches. The best chunk depends on the caches of the machine; the evaluation of 2000
 flights on predicted depth spends most of its time here, so this script measures it.
@@ -60,7 +60,8 @@ sys.path.insert(0, ROOT)
 from bench_autograd import bench_gemm  # noqa: E402  (this folder is on sys.path)
 from bench_depth import _median_ms  # noqa: E402
 from minid3rqn.depth.evaluate import DepthEstimator  # noqa: E402
-from minid3rqn.nets import dispnet, layers  # noqa: E402
+from minid3rqn.nets import fast as nets_fast  # noqa: E402
+from minid3rqn.nets.fast import DispNetInference  # noqa: E402
 from minid3rqn.world import Camera, SceneBatch, make_scene, render_batch, sample_start_pose  # noqa: E402
 
 MODEL = os.path.join(ROOT, "minid3rqn", "models", "depth_basic.npz")
@@ -114,17 +115,17 @@ def _no_elu_(y, bias, scratch, zeros):
 def bench_elu(est: DepthEstimator, rgb: np.ndarray, repeat: int) -> None:
     """Print the ms per frame of the DispNet with each ELU variant, and the ns per
     element of ``np.expm1`` and ``np.exp`` (see the module docstring)."""
-    shipped = dispnet.bias_elu_
+    shipped = nets_fast.bias_elu_
     variants = {"exp (shipped)": shipped, "expm1 (before)": _elu_expm1_, "none": _no_elu_}
     try:
         for name, fn in variants.items():
-            dispnet.bias_elu_ = fn          # read by every layer at call time
-            fast = est.net.inference(chunk=8)
+            nets_fast.bias_elu_ = fn        # read by every layer at call time
+            fast = DispNetInference(est.net, chunk=8)
             ms = _median_ms(lambda: fast(rgb), repeat)
             print(json.dumps({"elu": name, "frames": len(rgb),
                               "ms_per_frame": round(ms / len(rgb), 3)}), flush=True)
     finally:
-        dispnet.bias_elu_ = shipped
+        nets_fast.bias_elu_ = shipped
     x = -np.random.default_rng(0).random(8 * 32 * 104 * 16).astype(np.float32)
     out = np.empty_like(x)
     for name, ufunc in (("expm1", np.expm1), ("exp", np.exp)):
@@ -140,11 +141,11 @@ def bench_layers(est: DepthEstimator, rgb: np.ndarray, repeat: int) -> None:
     Each bound convolution and the in-place bias + ELU are wrapped with a timer; the
     wrappers cost a few microseconds per call, so the total is a little above an
     unwrapped run's (also printed)."""
-    plain = est.net.inference(chunk=8)
+    plain = DispNetInference(est.net, chunk=8)
     plain_ms = _median_ms(lambda: plain(rgb), repeat)
     timers: dict = {}       # conv index -> [seconds, calls, flops per call, in, out, kernel, stride]
     elu = [0.0]
-    bind, shipped = layers.ConvInference.bind, dispnet.bias_elu_
+    bind, shipped = nets_fast.ConvInference.bind, nets_fast.bias_elu_
 
     def timed_bind(self, xp, out, work):
         run = bind(self, xp, out, work)
@@ -167,8 +168,8 @@ def bench_layers(est: DepthEstimator, rgb: np.ndarray, repeat: int) -> None:
         return y
 
     try:
-        layers.ConvInference.bind, dispnet.bias_elu_ = timed_bind, timed_elu
-        fast = est.net.inference(chunk=8)
+        nets_fast.ConvInference.bind, nets_fast.bias_elu_ = timed_bind, timed_elu
+        fast = DispNetInference(est.net, chunk=8)
         for _ in range(3):                  # warm-up: builds the workspace, binds
             fast(rgb)
         for entry in timers.values():
@@ -179,7 +180,7 @@ def bench_layers(est: DepthEstimator, rgb: np.ndarray, repeat: int) -> None:
             fast(rgb)
         total = time.perf_counter() - t
     finally:
-        layers.ConvInference.bind, dispnet.bias_elu_ = bind, shipped
+        nets_fast.ConvInference.bind, nets_fast.bias_elu_ = bind, shipped
     frames = repeat * len(rgb)
     for k, (sec, calls, flops, xin, yout, kern, stride) in timers.items():
         print(json.dumps({"conv": k, "in_hwc": list(xin), "out_hwc": list(yout),
@@ -221,9 +222,9 @@ def main() -> int:
         (bench_elu if args.elu else bench_layers)(est, rgb, args.repeat)
         print(json.dumps({"caches": caches(), "threads": os.environ.get("OMP_NUM_THREADS")}))
         return 0
-    reference = est.net.inference(chunk=8)(rgb)
+    reference = DispNetInference(est.net, chunk=8)(rgb)
     for chunk in chunks:
-        fast = est.net.inference(chunk=chunk)
+        fast = DispNetInference(est.net, chunk=chunk)
         out = fast(rgb)
         diff = float(np.max(np.abs(out.astype(np.float64) - reference)))
         ms = _median_ms(lambda: fast(rgb), args.repeat)

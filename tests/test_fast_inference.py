@@ -1,5 +1,5 @@
-"""The graph-free inference path (nets.dispnet.DispNetInference, nets.layers.ConvInference)
-against the autograd forward it replaces at inference time.
+"""The graph-free inference paths (nets/fast.py: ConvInference, DispNetInference,
+qnet_step) against the autograd forward they replace at inference time.
 
 Training always runs the autograd path; ``DepthEstimator.predict`` runs the inference
 path. These tests pin the two together: on random weights and inputs (float64 and
@@ -13,8 +13,10 @@ import pytest
 
 from minid3rqn import autograd as ag
 from minid3rqn.depth.evaluate import DepthEstimator
-from minid3rqn.nets.dispnet import DispNet, DispNetInference
-from minid3rqn.nets.layers import Conv2d, ConvInference, bias_elu_, upsample_conv_phases
+from minid3rqn.nets.dispnet import DispNet
+from minid3rqn.nets.fast import (ConvInference, DispNetInference, bias_elu_, qnet_step,
+                                 upsample_conv_phases)
+from minid3rqn.nets.layers import Conv2d
 
 SHIPPED = Path(__file__).resolve().parents[1] / "minid3rqn" / "models" / "depth_basic.npz"
 
@@ -153,7 +155,7 @@ def test_dispnet_inference_takes_uint8_like_the_estimator():
     net = _random_net(np.float32, encoder=(8, 12), decoder=(4, 8), n_scales=2)
     rgb = np.random.default_rng(10).integers(0, 256, (3, 16, 24, 3), dtype=np.uint8)
     ref = _autograd_disp(net, rgb.astype(np.float32) * (1 / 255.0))
-    np.testing.assert_allclose(net.inference()(rgb), ref, rtol=2e-5, atol=0)
+    np.testing.assert_allclose(DispNetInference(net)(rgb), ref, rtol=2e-5, atol=0)
 
 
 def test_inference_is_a_snapshot_and_refresh_rereads_weights():
@@ -211,7 +213,7 @@ def test_shipped_model_predict_matches_the_autograd_path():
 @pytest.mark.parametrize("variant, channels", [("d3rqn", 1), ("ddrqn", 1), ("d3qn", 5),
                                                ("ddqn", 5)])
 def test_qnet_step_without_graph_equals_forward(variant, channels):
-    """Under no_grad QNet.step runs on plain arrays; same Q and state, to the bit."""
+    """Under no_grad qnet_step runs on plain arrays; same Q and state, to the bit."""
     from minid3rqn.nets.qnet import build_qnet
     net = build_qnet(variant, rng=0, in_channels=channels)
     rng = np.random.default_rng(12)
@@ -223,7 +225,7 @@ def test_qnet_step_without_graph_equals_forward(variant, channels):
                           for _ in range(2))
         q_ref, state_ref = net.step(obs, state)           # gradients on: forward
         with ag.no_grad():
-            q, new_state = net.step(obs, state)
+            q, new_state = qnet_step(net, obs, state)
         np.testing.assert_array_equal(q.data, q_ref.data)
         if net.recurrent:
             for a, b in zip(new_state, state_ref):
@@ -237,6 +239,6 @@ def test_qnet_step_without_graph_reads_the_current_weights():
     net = build_qnet("d3rqn", rng=0)
     obs = np.random.default_rng(13).random((2, 1, 32, 104)).astype(np.float32)
     with ag.no_grad():
-        before = net.step(obs)[0].data.copy()
+        before = qnet_step(net, obs)[0].data.copy()
         net.value.bias.data += 1.0                        # e.g. an optimizer step
-        np.testing.assert_allclose(net.step(obs)[0].data, before + 1.0, rtol=1e-6)
+        np.testing.assert_allclose(qnet_step(net, obs)[0].data, before + 1.0, rtol=1e-6)

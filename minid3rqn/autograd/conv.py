@@ -231,7 +231,7 @@ def conv2d_nhwc(xp: np.ndarray, kernel, stride, out_hw, wmat_t: np.ndarray,
 
     The convolution arithmetic itself, in one place: ``conv2d``'s forward, the
     backward passes (``_transposed_conv``, ``conv_transpose2d``) and the graph-free
-    inference path (``nets.layers.ConvInference``) all run it (the last through
+    inference path (``nets.fast.ConvInference``) all run it (the last through
     ``conv2d_nhwc_plan`` + ``run_conv_plan``, which is what this function does).
 
     ``xp`` is the zero-padded input, channels-last (N, Hp, Wp, C); ``wmat_t`` the weight

@@ -25,6 +25,7 @@ import numpy as np
 from .. import autograd as ag
 from ..io import load_npz, save_npz
 from ..nets.dispnet import DispNet
+from ..nets.fast import DispNetInference
 from ..world.geometry import relative_transform
 from .data import Sequence
 from .geometry import pose_vec_to_mat
@@ -96,7 +97,7 @@ class DepthEstimator:
         return cls(net, meta.get("scale", 1.0), meta, flip)
 
     # -- inference -------------------------------------------------------------------
-    # ``predict`` runs ``DispNetInference`` (nets/dispnet.py): a graph-free copy of the
+    # ``predict`` runs ``DispNetInference`` (nets/fast.py): a graph-free copy of the
     # network's weights, plain NumPy, finest scale only, the same convolution routine as
     # the autograd path; ~2.5x faster at batch 1 (the flight loop), ~2x on batches.
     # Training, and anything that needs gradients, uses ``self.net`` (DispNet.forward).
@@ -130,7 +131,7 @@ class DepthEstimator:
         """
         rgb, single = self._frames(rgb)
         if self._fast is None:
-            self._fast = self.net.inference()
+            self._fast = DispNetInference(self.net)
         out = self._fast(rgb).astype(np.float32, copy=False)
         if self.flip:
             mirrored = self._fast(np.ascontiguousarray(rgb[:, :, ::-1]))

@@ -35,7 +35,7 @@ import numpy as np
 from .. import autograd as ag
 from ..autograd import Tensor
 from .init import as_rng
-from .layers import LSTM, Conv2d, ConvInference, Linear
+from .layers import LSTM, Conv2d, Linear
 from .module import Module
 
 # The four settings of the family (double Q always).
@@ -209,83 +209,11 @@ class QNet(Module):
         return self.head(z), state
 
     def step(self, obs, state=None):
-        """One time step: obs (B, C, H, W) -> (Q (B, n_actions), new state).
-
-        Under ``no_grad`` (acting: the policies, the agent's epsilon-greedy steps) this
-        runs ``_step_numpy``, the same computation without building a graph; with
-        gradients on, ``forward``.
-        """
+        """One time step: obs (B, C, H, W) -> (Q (B, n_actions), new state); ``forward``
+        on a sequence of length 1."""
         obs = obs.data if isinstance(obs, Tensor) else np.asarray(obs)
-        if not ag.is_grad_enabled() and self._numpy_ok(obs, state):
-            return self._step_numpy(obs, state)
         q, state = self.forward(obs[None], state)
         return q[0], state
-
-    # -- graph-free acting ---------------------------------------------------------------
-    def _numpy_ok(self, obs: np.ndarray, state) -> bool:
-        """Inputs the graph-free step handles; anything else (wrong shapes or dtypes)
-        goes to ``forward``, which raises the usual errors."""
-        cfg, dtype = self.config, self.convs[0].weight.dtype
-        expected = (cfg.in_channels, cfg.height, cfg.width_px)
-        if obs.ndim != 4 or obs.shape[1:] != expected or obs.dtype != dtype:
-            return False
-        if state is None or not self.recurrent:
-            return True
-        return all(np.shape(s) == (obs.shape[0], cfg.width) and
-                   (s.dtype if isinstance(s, Tensor) else np.asarray(s).dtype) == dtype
-                   for s in state)
-
-    def _step_numpy(self, obs: np.ndarray, state):
-        """``step`` on plain arrays: the operations of ``forward`` (T = 1), in the same
-        order and with the same routines (``conv2d_nhwc`` through ``ConvInference``,
-        the LSTM's ``_gates``), so Q and the state come out the same, but without
-        Tensor wrappers, argument checks and backward closures, which at batch 1 cost
-        more than the arithmetic (the whole framework runs this once per frame).
-        Reads the current weights on every call: nothing is cached, so it is safe
-        while the network trains."""
-        from ..autograd.lstm import _gates
-        B = obs.shape[0]
-        x = np.ascontiguousarray(obs.transpose(0, 2, 3, 1))        # channels-last
-        for conv in self.convs:
-            layer = ConvInference(conv)                   # valid convolution: no padding
-            x = layer(x)
-            if layer.bias is not None:
-                x += layer.bias
-            np.multiply(x, x > 0, out=x)                  # ReLU, as ag.relu computes it
-        z = x.transpose(0, 3, 1, 2).reshape(B, self.n_features)    # NCHW order, as flatten
-        if self.recurrent:
-            core, H = self.core, self.config.width
-            if state is None:
-                h = np.zeros((B, H), z.dtype)
-                c = np.zeros((B, H), z.dtype)
-            else:
-                h, c = (s.data if isinstance(s, Tensor) else np.asarray(s) for s in state)
-            gates = z @ core.weight_ih.data.T
-            gates += core.bias.data
-            gates += h @ core.weight_hh.data.T
-            _gates(gates, H)
-            i, f = gates[:, :H], gates[:, H:2 * H]
-            g, o = gates[:, 2 * H:3 * H], gates[:, 3 * H:]
-            c = f * c + i * g
-            h = o * np.tanh(c)
-            z, state = h, (Tensor(h), Tensor(c))
-        else:
-            z = _linear(z, self.core)
-            np.multiply(z, z > 0, out=z)
-            state = None
-        z = z[None]                                        # (1, B, width), as forward
-        if self.config.dueling:
-            value, adv = _linear(z, self.value), _linear(z, self.advantage)
-            q = value + (adv - np.mean(adv, axis=(-1,), keepdims=True).astype(adv.dtype))
-        else:
-            q = _linear(z, self.q_head)
-        return Tensor(q[0]), state
-
-
-def _linear(x: np.ndarray, layer: Linear) -> np.ndarray:
-    """``layer(x)`` on arrays: x W^T + b."""
-    y = x @ layer.weight.data.T
-    return y + layer.bias.data if layer.bias is not None else y
 
 
 def build_qnet(variant: str = "d3rqn", rng=None, **overrides) -> QNet:
