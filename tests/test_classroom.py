@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from minid3rqn.classroom import EXERCISES, find
-from minid3rqn.classroom import adapters, checks
+from minid3rqn.classroom import checks
 from minid3rqn.classroom.commands import run_check
 
 pytestmark = pytest.mark.classroom
@@ -463,15 +463,6 @@ def test_flights_pay_the_students_reward():
     two.reset()
     res = two.step(np.array([0, 3, 4]))
     np.testing.assert_allclose(res.rewards, np.where(res.terminated, -1.0, 3.0))
-
-
-def test_the_photometric_patch_is_scoped():
-    import importlib
-    dl = importlib.import_module("minid3rqn.depth.losses")
-    before = dl.photometric_error
-    with adapters.photometric_error(lambda p, t: "mine"):
-        assert dl.photometric_error(1, 2, 0.85) == "mine"
-    assert dl.photometric_error is before
 
 
 # -- the runner and the CLI hooks ------------------------------------------------------

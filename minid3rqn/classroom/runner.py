@@ -297,10 +297,8 @@ def run_depth_exercise(ex: Exercise, module, budget: str = "small", seed: int = 
                       checkpoint_every=10 ** 9, loss=loss)
     fn = None if module is None else module.photometric_error
     t0 = time.time()
-    from .adapters import photometric_error
-    with photometric_error(fn):
-        trainer = Trainer(train, cfg)
-        trainer.run(progress=progress)
+    trainer = Trainer(train, cfg, photometric_error=fn)
+    trainer.run(progress=progress)
     t_train = time.time() - t0
     est = DepthEstimator(trainer.disp, trainer.speed_scale())
     metrics = evaluate(est, test)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .policies import Policy, QNetPolicy
+from .policies import Policy, QNetPolicy, trained_actions
 from .replay import SequenceBatch
 
 
@@ -39,7 +39,6 @@ class MirroredPolicy(Policy):
     (the same weights); the memory (frame stack, recurrent state) is its own."""
 
     def __init__(self, policy: QNetPolicy, actions=None):
-        from .models import trained_actions
         self.meta = getattr(policy, "meta", None)
         self.inner = QNetPolicy(policy.qnet, policy.name + "-mirrored")
         self.qnet, self.name = policy.qnet, self.inner.name

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .policies import _trained, trained_actions, trained_camera
+
 MODELS = Path(__file__).resolve().parent.parent / "models"
 SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
 # The shipped Q-nets by name (fly --model NAME): the paper's training (the default), and
@@ -53,24 +55,6 @@ def depth_estimator_for(depth: str, depth_model=None, scenario: str = "basic",
 
 
 # -- what a Q-net file records ------------------------------------------------------------
-def _trained(meta: dict | None) -> dict:
-    return (meta or {}).get("train_config") or {}
-
-
-def trained_actions(meta: dict | None) -> np.ndarray:
-    """The action table (A, 2) a Q-net was trained with (the paper's Table 3 if the
-    file records none)."""
-    from ..world import ACTIONS
-    actions = _trained(meta).get("actions")
-    return ACTIONS.copy() if actions is None else np.asarray(actions, dtype=np.float64)
-
-
-def trained_camera(meta: dict | None):
-    """The camera a Q-net was trained with (90 degrees wide if the file records none)."""
-    from ..world import Camera
-    return Camera(hfov_deg=float(_trained(meta).get("hfov_deg", 90.0)))
-
-
 def unfinished_warning(policy) -> str | None:
     """A warning if a Q-net file is a snapshot of a run that had not finished (a run
     rewrites model.npz at every checkpoint)."""

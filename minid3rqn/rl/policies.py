@@ -22,6 +22,24 @@ from ..nets.qnet import QNet, QNetConfig
 from .agent import Agent, FrameStacker
 
 
+
+def _trained(meta: dict | None) -> dict:
+    return (meta or {}).get("train_config") or {}
+
+
+def trained_actions(meta: dict | None) -> np.ndarray:
+    """The action table (A, 2) a Q-net was trained with (the paper's Table 3 if the
+    file records none)."""
+    from ..world import ACTIONS
+    actions = _trained(meta).get("actions")
+    return ACTIONS.copy() if actions is None else np.asarray(actions, dtype=np.float64)
+
+
+def trained_camera(meta: dict | None):
+    """The camera a Q-net was trained with (90 degrees wide if the file records none)."""
+    from ..world import Camera
+    return Camera(hfov_deg=float(_trained(meta).get("hfov_deg", 90.0)))
+
 class Policy:
     name = "policy"
 
