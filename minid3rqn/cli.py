@@ -15,7 +15,7 @@ from .config import UsageError
 # command name -> (module, one-line help). Each module defines add_arguments(parser)
 # and run(args) -> int for its command (named ``cli_<command>`` with dashes -> _).
 COMMANDS: dict[str, tuple[str, str]] = {
-    # the main job and the decision module (issue: D3RQN)
+    # the main job and the decision module (D3RQN)
     "fly": ("minid3rqn.rl.commands", "fly the shipped model: GIF + success rate (the main job)"),
     "train-agent": ("minid3rqn.rl.commands", "train a Q-network (DDQN, D3QN, DDRQN, D3RQN)"),
     "distil": ("minid3rqn.rl.commands",
@@ -23,11 +23,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "evaluate": ("minid3rqn.rl.commands", "success rate over many flights, with a 95%% CI"),
     "reproduce": ("minid3rqn.rl.commands", "rerun Tables 5 and 6 end to end (--quick)"),
     "pool": ("minid3rqn.rl.pool", "pool evaluate --json records by world; A against B"),
-    # sensing (issue: unsupervised depth)
+    # sensing (unsupervised depth)
     "collect": ("minid3rqn.depth.commands", "fly a scripted pilot and save image sequences"),
     "train-depth": ("minid3rqn.depth.commands", "train DispNet + PoseNet by view synthesis"),
     "eval-depth": ("minid3rqn.depth.commands", "depth and pose error against ground truth"),
-    # the world (issue: 2.5D world)
+    # the world (2.5D)
     "calibrate": ("minid3rqn.world.calibration",
                   "oracle / straight / random success in every scenario"),
     # the classroom

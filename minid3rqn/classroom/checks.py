@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ..world.stepper import accepts_yaw_rate
 from ..depth.evaluate import log_error_parts
 from .loader import describe, get_callable, get_value, load_student_module, where_in
 from .report import Report, Stop
@@ -76,9 +77,6 @@ def _as_float(report, value, what, path):
 
 
 def check_reward(path) -> Report:
-    from ..world import paper_reward
-    from ..world.stepper import accepts_yaw_rate
-
     def body(m, r):
         fn = get_callable(m, "reward", r, path)
         params = list(inspect.signature(fn).parameters.values())
@@ -126,81 +124,94 @@ def check_reward(path) -> Report:
             if any(abs(v + 1.0) > 1e-12 for v in hit.values()):
                 r.note(f"the paper gives -1 on collision; yours gives {hit[0.0]:g}")
 
-        # vectorised: arrays in, arrays out, same values as number by number
-        ds = np.array([0.5, 0.7, 1.2, 2.5, 4.0, 9.0, 0.4, 0.45])
-        cs = np.array([False, False, False, False, False, False, True, True])
-        ws = np.array([0.0, 0.25, -0.5, 0.5, -0.25, 0.0, 0.5, 0.0])
-        args = (ds, cs, ws) if sees_yaw else (ds, cs)
-        what = "reward(array_of_d, array_of_collided" + (", array_of_yaw)" if sees_yaw else ")")
-        out = _call(r, path, what, fn, *args)
-        arr = np.asarray(out, dtype=np.float64) if out is not None else None
-        if arr is None or arr.shape != ds.shape:
-            r.fail(f"with arrays of {len(ds)} flights reward must return an array of shape "
-                   f"{ds.shape}; got {None if arr is None else arr.shape}",
-                   hint="use np.where / np.minimum / np.abs so every entry is handled; "
-                        "`float(...)` or `if` would squash the array", stop=True)
-        one_by_one = np.array([R(float(d), bool(c), float(w)) for d, c, w in zip(ds, cs, ws)])
-        if not np.allclose(arr, one_by_one, rtol=1e-6, atol=1e-9):
-            k = int(np.argmax(np.abs(arr - one_by_one)))
-            r.fail(f"arrays and numbers disagree: for flight {k} (d={ds[k]}, collided={cs[k]}"
-                   + (f", yaw={ws[k]}" if sees_yaw else "") + f") the array call gives "
-                   f"{arr[k]:g} but the number call gives {one_by_one[k]:g}", stop=True)
-        r.ok("works on arrays (all flights at once), same values as one by one")
+        _reward_on_arrays(r, path, fn, sees_yaw, R)
 
-        # did it change, and how?
-        paper = {(d, w): float(paper_reward(d, False)) for (d, w) in table}
-        changed = [k for k in table if abs(table[k] - paper[k]) > 1e-9]
-        if not changed and all(abs(v + 1.0) <= 1e-12 for v in hit.values()):
-            r.fail("your reward is still the paper's (d_nearest, or -1 on collision)",
-                   hint="penalise turning (e.g. d_nearest - 2.0 * np.abs(yaw_rate)) or clip or "
-                        "scale d_nearest (e.g. np.minimum(d_nearest, 3.0)); see the docstring",
-                   stop=True)
-        if sees_yaw:
-            penalties = {w: table[(2.0, 0.0)] - table[(2.0, w)] for w in rates[1:]}
-            if any(abs(p) > 1e-9 for p in penalties.values()):
-                if all(p > 0 for p in penalties.values()):
-                    r.ok("turning is penalised: at d = 2 m, " + ", ".join(
-                        f"yaw {w:+.2f} costs {p:.3g}" for w, p in penalties.items()))
-                    if abs(penalties[0.5] - penalties[-0.5]) > 1e-9:
-                        r.note("left and right turns are penalised differently; intended?")
-                    if penalties[0.5] + 1e-12 < penalties[0.25]:
-                        r.note("a sharp turn costs less than a gentle one; intended?")
-                else:
-                    worst = min(penalties, key=penalties.get)
-                    r.fail(f"your reward depends on the yaw rate but does not penalise turning: "
-                           f"reward(2.0, False, {worst}) = {table[(2.0, worst)]:g} >= reward(2.0, "
-                           f"False, 0.0) = {table[(2.0, 0.0)]:g}",
-                           hint="subtract a positive cost that grows with |yaw_rate|")
-        straight = np.array([table[(d, 0.0)] for d in D_GRID])
-        if np.any(np.abs(straight - D_GRID) > 1e-9):
-            pairs = ", ".join(f"d={d:g}: {v:.3g}"
-                              for d, v in zip(D_GRID[[0, 5, 9]], straight[[0, 5, 9]]))
-            r.ok(f"flying straight, your reward differs from the paper's d_nearest ({pairs})")
-        if np.any(np.diff(straight) < -1e-9):
-            r.note("your reward decreases with the distance to obstacles somewhere: flying "
-                   "farther from obstacles should not be worse")
-        if np.max(np.abs(list(table.values()))) > 100:
-            r.note("rewards above 100 in size make Q-values large; the agent multiplies "
-                   "rewards by 0.1, but consider scaling down")
-
-        # it reaches the environment and the training flights
-        from ..world import DroneEnv
-        env = DroneEnv("basic", seed=0, reward_fn=fn, observe=False)
-        env.reset(seed=0)
-        _, rew, *_ = _call(r, path, "DroneEnv(reward_fn=reward).step(0)", env.step, 0)
-        if not math.isfinite(rew):
-            r.fail(f"in the environment your reward gave {rew}", stop=True)
-        from ..rl.flights import Flights
-        fl = Flights("basic", 4, seed=0, reward_fn=fn, config=_small_pool())
-        fl.reset()
-        res = _call(r, path, "the training flights' step", fl.step, np.array([0, 1, 3, 4]))
-        if not np.all(np.isfinite(res.rewards)):
-            r.fail(f"in the training flights your reward gave {res.rewards}", stop=True)
-        shown = [round(float(x), 3) for x in res.rewards]
-        r.ok(f"reaches the environment and the training flights (rewards {shown})")
+        _reward_changes(r, table, hit, rates, sees_yaw)
+        _reward_reaches_training(r, path, fn)
         r.summary = {"sees_yaw_rate": sees_yaw, "collision_reward": hit[0.0]}
 
     return _run(Report("1 (reward)", path), path, body)
+
+
+def _reward_on_arrays(r, path, fn, sees_yaw: bool, R) -> None:
+    """Arrays in, arrays out, the same values as number by number (``R``: one call)."""
+    ds = np.array([0.5, 0.7, 1.2, 2.5, 4.0, 9.0, 0.4, 0.45])
+    cs = np.array([False, False, False, False, False, False, True, True])
+    ws = np.array([0.0, 0.25, -0.5, 0.5, -0.25, 0.0, 0.5, 0.0])
+    args = (ds, cs, ws) if sees_yaw else (ds, cs)
+    what = "reward(array_of_d, array_of_collided" + (", array_of_yaw)" if sees_yaw else ")")
+    out = _call(r, path, what, fn, *args)
+    arr = np.asarray(out, dtype=np.float64) if out is not None else None
+    if arr is None or arr.shape != ds.shape:
+        r.fail(f"with arrays of {len(ds)} flights reward must return an array of shape "
+               f"{ds.shape}; got {None if arr is None else arr.shape}",
+               hint="use np.where / np.minimum / np.abs so every entry is handled; "
+                    "`float(...)` or `if` would squash the array", stop=True)
+    one_by_one = np.array([R(float(d), bool(c), float(w)) for d, c, w in zip(ds, cs, ws)])
+    if not np.allclose(arr, one_by_one, rtol=1e-6, atol=1e-9):
+        k = int(np.argmax(np.abs(arr - one_by_one)))
+        r.fail(f"arrays and numbers disagree: for flight {k} (d={ds[k]}, collided={cs[k]}"
+               + (f", yaw={ws[k]}" if sees_yaw else "") + f") the array call gives "
+               f"{arr[k]:g} but the number call gives {one_by_one[k]:g}", stop=True)
+    r.ok("works on arrays (all flights at once), same values as one by one")
+
+
+def _reward_changes(r, table: dict, hit: dict, rates: list, sees_yaw: bool) -> None:
+    """Did the reward change from the paper's, and how (``table``: safe steps by (d, yaw);
+    ``hit``: collisions by yaw)?"""
+    from ..world import paper_reward
+    paper = {(d, w): float(paper_reward(d, False)) for (d, w) in table}
+    changed = [k for k in table if abs(table[k] - paper[k]) > 1e-9]
+    if not changed and all(abs(v + 1.0) <= 1e-12 for v in hit.values()):
+        r.fail("your reward is still the paper's (d_nearest, or -1 on collision)",
+               hint="penalise turning (e.g. d_nearest - 2.0 * np.abs(yaw_rate)) or clip or "
+                    "scale d_nearest (e.g. np.minimum(d_nearest, 3.0)); see the docstring",
+               stop=True)
+    if sees_yaw:
+        penalties = {w: table[(2.0, 0.0)] - table[(2.0, w)] for w in rates[1:]}
+        if any(abs(p) > 1e-9 for p in penalties.values()):
+            if all(p > 0 for p in penalties.values()):
+                r.ok("turning is penalised: at d = 2 m, " + ", ".join(
+                    f"yaw {w:+.2f} costs {p:.3g}" for w, p in penalties.items()))
+                if abs(penalties[0.5] - penalties[-0.5]) > 1e-9:
+                    r.note("left and right turns are penalised differently; intended?")
+                if penalties[0.5] + 1e-12 < penalties[0.25]:
+                    r.note("a sharp turn costs less than a gentle one; intended?")
+            else:
+                worst = min(penalties, key=penalties.get)
+                r.fail(f"your reward depends on the yaw rate but does not penalise turning: "
+                       f"reward(2.0, False, {worst}) = {table[(2.0, worst)]:g} >= reward(2.0, "
+                       f"False, 0.0) = {table[(2.0, 0.0)]:g}",
+                       hint="subtract a positive cost that grows with |yaw_rate|")
+    straight = np.array([table[(d, 0.0)] for d in D_GRID])
+    if np.any(np.abs(straight - D_GRID) > 1e-9):
+        pairs = ", ".join(f"d={d:g}: {v:.3g}"
+                          for d, v in zip(D_GRID[[0, 5, 9]], straight[[0, 5, 9]]))
+        r.ok(f"flying straight, your reward differs from the paper's d_nearest ({pairs})")
+    if np.any(np.diff(straight) < -1e-9):
+        r.note("your reward decreases with the distance to obstacles somewhere: flying "
+               "farther from obstacles should not be worse")
+    if np.max(np.abs(list(table.values()))) > 100:
+        r.note("rewards above 100 in size make Q-values large; the agent multiplies "
+               "rewards by 0.1, but consider scaling down")
+
+
+def _reward_reaches_training(r, path, fn) -> None:
+    """The reward reaches the environment and the training flights."""
+    from ..world import DroneEnv
+    env = DroneEnv("basic", seed=0, reward_fn=fn, observe=False)
+    env.reset(seed=0)
+    _, rew, *_ = _call(r, path, "DroneEnv(reward_fn=reward).step(0)", env.step, 0)
+    if not math.isfinite(rew):
+        r.fail(f"in the environment your reward gave {rew}", stop=True)
+    from ..rl.flights import Flights
+    fl = Flights("basic", 4, seed=0, reward_fn=fn, config=_small_pool())
+    fl.reset()
+    res = _call(r, path, "the training flights' step", fl.step, np.array([0, 1, 3, 4]))
+    if not np.all(np.isfinite(res.rewards)):
+        r.fail(f"in the training flights your reward gave {res.rewards}", stop=True)
+    shown = [round(float(x), 3) for x in res.rewards]
+    r.ok(f"reaches the environment and the training flights (rewards {shown})")
 
 
 # =====================================================================================
@@ -255,39 +266,42 @@ def check_actions(path) -> Report:
         if n > 11:
             r.note(f"{n} actions: a large head learns slowly within a short budget")
 
-        # it reaches the environment
-        from ..world import DroneEnv
-        env = DroneEnv("basic", seed=0, actions=table, observe=False)
-        if env.action_space.n != n:
-            r.fail(f"the environment sees {env.action_space.n} actions, not {n}", stop=True)
-        _, info0 = env.reset(seed=0, options={"pose": _free_pose(env)})
-        _, _, term, _, info = _call(r, path, f"DroneEnv(actions=ACTIONS).step({n - 1})",
-                                    env.step, n - 1)
-        turned = float(info["pose"][2] - info0["pose"][2])
-        want = table[n - 1, 1] * env.dt
-        if not term and abs(turned - want) > 1e-6:
-            r.fail(f"after action {n - 1} the drone turned {turned:.3f} rad; expected "
-                   f"{want:.3f}", stop=True)
-        r.ok(f"the environment flies the new action {n - 1} ({table[n - 1].tolist()}: "
-             f"turned {turned:+.2f} rad in 0.4 s)")
-        from ..rl.flights import Flights
-        fl = Flights("basic", 2, seed=0, actions=table, config=_small_pool())
-        fl.reset()
-        _call(r, path, "Flights(actions=ACTIONS).step", fl.step, np.array([n - 1, 0]))
-        r.ok(f"the training flights accept action {n - 1}")
-
-        # and the network's head follows the table
-        from ..nets.qnet import QNet
-        from ..rl.train import TrainConfig
-        cfg = TrainConfig(hidden=16).qnet_config(fl.n_actions, fl.frame_shape)
-        net = QNet(cfg, rng=0)
-        q, _ = net(np.zeros((1, 1, cfg.in_channels) + tuple(fl.frame_shape), np.float32))
-        if q.shape[-1] != n:
-            r.fail(f"the Q-network has {q.shape[-1]} outputs, not {n}", stop=True)
-        r.ok(f"the Q-network's head has {n} outputs, one per action")
+        _actions_reach_training(r, path, table)
         r.summary = {"n_actions": n, "added": new, "removed": gone}
 
     return _run(Report("2 (actions)", path), path, body)
+
+
+def _actions_reach_training(r, path, table: np.ndarray) -> None:
+    """The table reaches the environment, the training flights and the Q-net's head."""
+    n = len(table)
+    from ..world import DroneEnv
+    env = DroneEnv("basic", seed=0, actions=table, observe=False)
+    if env.action_space.n != n:
+        r.fail(f"the environment sees {env.action_space.n} actions, not {n}", stop=True)
+    _, info0 = env.reset(seed=0, options={"pose": _free_pose(env)})
+    _, _, term, _, info = _call(r, path, f"DroneEnv(actions=ACTIONS).step({n - 1})",
+                                env.step, n - 1)
+    turned = float(info["pose"][2] - info0["pose"][2])
+    want = table[n - 1, 1] * env.dt
+    if not term and abs(turned - want) > 1e-6:
+        r.fail(f"after action {n - 1} the drone turned {turned:.3f} rad; expected "
+               f"{want:.3f}", stop=True)
+    r.ok(f"the environment flies the new action {n - 1} ({table[n - 1].tolist()}: "
+         f"turned {turned:+.2f} rad in 0.4 s)")
+    from ..rl.flights import Flights
+    fl = Flights("basic", 2, seed=0, actions=table, config=_small_pool())
+    fl.reset()
+    _call(r, path, "Flights(actions=ACTIONS).step", fl.step, np.array([n - 1, 0]))
+    r.ok(f"the training flights accept action {n - 1}")
+    from ..nets.qnet import QNet
+    from ..rl.train import TrainConfig
+    cfg = TrainConfig(hidden=16).qnet_config(fl.n_actions, fl.frame_shape)
+    net = QNet(cfg, rng=0)
+    q, _ = net(np.zeros((1, 1, cfg.in_channels) + tuple(fl.frame_shape), np.float32))
+    if q.shape[-1] != n:
+        r.fail(f"the Q-network has {q.shape[-1]} outputs, not {n}", stop=True)
+    r.ok(f"the Q-network's head has {n} outputs, one per action")
 
 
 def _small_pool():
@@ -455,7 +469,7 @@ def check_ablation(path) -> Report:
 # Exercise 6: a new autograd op
 # =====================================================================================
 def check_op(path) -> Report:
-    from ..autograd import GradcheckError, Tensor, gradcheck, no_grad
+    from ..autograd import Tensor
 
     def body(m, r):
         fn = get_callable(m, "leaky_relu", r, path)
@@ -488,46 +502,52 @@ def check_op(path) -> Report:
         if not np.allclose(default.data, np.where(x > 0, x, 0.01 * x)):
             r.note("the default slope is not 0.01")
 
-        # the backward pass
-        leaf = Tensor(x.copy(), requires_grad=True)
-        y = _call(r, path, "leaky_relu(leaf with requires_grad)", fn, leaf, 0.2)
-        if not y.requires_grad:
-            r.fail("the output does not require grad although the input does: the graph is cut",
-                   hint="build the output with Tensor.from_op(y, (x,), vjp, name)", stop=True)
-        parents = getattr(y, "_parents", ())
-        if len(parents) != 1 or parents[0] is not leaf:
-            r.fail("leaky_relu is built from other Tensor ops, so autograd wrote the backward "
-                   "for you",
-                   hint="compute y with NumPy on x.data and return Tensor.from_op(y, (x,), vjp, "
-                        "'leaky_relu') with your own vjp(g)", stop=True)
-        _call(r, path, "backward() through leaky_relu", y.backward, np.ones_like(x))
-        want = np.where(x > 0, 1.0, 0.2)
-        if leaf.grad is None or not np.allclose(leaf.grad, want):
-            got = None if leaf.grad is None else np.round(leaf.grad, 4).tolist()
-            r.fail(f"dy/dx is wrong: got {got}, expected {want.tolist()}",
-                   hint="vjp(g) must return (g * (1 where x > 0, slope elsewhere),) - a tuple",
-                   stop=True)
-        r.ok("backward: dy/dx = 1 for x > 0, slope otherwise")
-        rng = np.random.default_rng(0)
-        xs = rng.standard_normal((3, 5))
-        xs = np.where(np.abs(xs) < 0.05, 0.3, xs)           # stay off the kink at 0
-        try:
-            gradcheck(lambda t: fn(t, 0.1) * t, [xs])
-            gradcheck(lambda t: fn(t, 0.3), [xs])
-        except GradcheckError as e:
-            r.fail(f"gradcheck failed: {e}",
-                   hint="the backward must multiply the incoming gradient g elementwise",
-                   stop=True)
-        except Exception as e:  # noqa: BLE001
-            r.fail(f"gradcheck raised {describe(e, path)}", stop=True)
-        r.ok("passes gradcheck (backward agrees with central differences, float64)")
-        with no_grad():
-            z = _call(r, path, "leaky_relu inside no_grad()", fn, Tensor(x, requires_grad=True))
-        if z.requires_grad:
-            r.fail("inside no_grad() the output must not record a graph", stop=True)
-        r.ok("records no graph inside no_grad()")
+        _op_backward(r, path, fn, x)
 
     return _run(Report("6 (autograd op)", path), path, body)
+
+
+def _op_backward(r, path, fn, x: np.ndarray) -> None:
+    """The op's backward: its own vjp, right on a grid, through gradcheck, no graph
+    inside no_grad()."""
+    from ..autograd import GradcheckError, Tensor, gradcheck, no_grad
+    leaf = Tensor(x.copy(), requires_grad=True)
+    y = _call(r, path, "leaky_relu(leaf with requires_grad)", fn, leaf, 0.2)
+    if not y.requires_grad:
+        r.fail("the output does not require grad although the input does: the graph is cut",
+               hint="build the output with Tensor.from_op(y, (x,), vjp, name)", stop=True)
+    parents = getattr(y, "_parents", ())
+    if len(parents) != 1 or parents[0] is not leaf:
+        r.fail("leaky_relu is built from other Tensor ops, so autograd wrote the backward "
+               "for you",
+               hint="compute y with NumPy on x.data and return Tensor.from_op(y, (x,), vjp, "
+                    "'leaky_relu') with your own vjp(g)", stop=True)
+    _call(r, path, "backward() through leaky_relu", y.backward, np.ones_like(x))
+    want = np.where(x > 0, 1.0, 0.2)
+    if leaf.grad is None or not np.allclose(leaf.grad, want):
+        got = None if leaf.grad is None else np.round(leaf.grad, 4).tolist()
+        r.fail(f"dy/dx is wrong: got {got}, expected {want.tolist()}",
+               hint="vjp(g) must return (g * (1 where x > 0, slope elsewhere),) - a tuple",
+               stop=True)
+    r.ok("backward: dy/dx = 1 for x > 0, slope otherwise")
+    rng = np.random.default_rng(0)
+    xs = rng.standard_normal((3, 5))
+    xs = np.where(np.abs(xs) < 0.05, 0.3, xs)           # stay off the kink at 0
+    try:
+        gradcheck(lambda t: fn(t, 0.1) * t, [xs])
+        gradcheck(lambda t: fn(t, 0.3), [xs])
+    except GradcheckError as e:
+        r.fail(f"gradcheck failed: {e}",
+               hint="the backward must multiply the incoming gradient g elementwise",
+               stop=True)
+    except Exception as e:  # noqa: BLE001
+        r.fail(f"gradcheck raised {describe(e, path)}", stop=True)
+    r.ok("passes gradcheck (backward agrees with central differences, float64)")
+    with no_grad():
+        z = _call(r, path, "leaky_relu inside no_grad()", fn, Tensor(x, requires_grad=True))
+    if z.requires_grad:
+        r.fail("inside no_grad() the output must not record a graph", stop=True)
+    r.ok("records no graph inside no_grad()")
 
 
 # =====================================================================================
@@ -579,44 +599,23 @@ def check_photometric(path) -> Report:
                    hint="use autograd ops only, so the depth network gets gradients", stop=True)
         r.ok("gradients flow back to the warped image (gradcheck)")
 
-        # what is it? fit e = a * (1 - SSIM)/2 + b * L1
-        from ..depth.losses import ssim_dissimilarity
-        l1 = np.abs(p - t).mean(axis=1).ravel()
-        ss = ssim_dissimilarity(Tensor(p), Tensor(t)).data.mean(axis=1).ravel()
-        A = np.stack([ss, l1], 1)
-        (a, b), *_ = np.linalg.lstsq(A, e.ravel(), rcond=None)
-        fit = np.abs(A @ np.array([a, b]) - e.ravel()).max()
-        if fit < 1e-6 and abs(a) < 1e-6 and abs(b - 1) < 1e-6:
-            r.fail("this is still plain L1 (the paper's Eq. 2)",
-                   hint="return alpha * SSIM term + (1 - alpha) * L1 term with alpha = 0.85; "
-                        "the SSIM term is ag.mean(ssim_dissimilarity(pred, target), axis=1, "
-                        "keepdims=True)", stop=True)
-        if fit < 1e-6:
-            alpha = a / (a + b) if abs(a + b) > 1e-12 else float("nan")
-            r.ok(f"SSIM + L1 with alpha = {alpha:.3f} (monodepth2: 0.85)")
-            if abs(a + b - 1) > 1e-3:
-                r.note(f"the two weights add up to {a + b:.3f}, not 1: that rescales the "
-                       f"photometric term against the smoothness term")
-            if a < -1e-9 or b < -1e-9:
-                r.fail("a negative weight rewards mismatching images", stop=True)
-            r.summary = {"alpha": float(alpha)}
-        else:
-            r.note("your error is neither L1 nor an SSIM + L1 blend: fine if intended "
-                   "(the checker cannot name it)")
+        _photometric_kind(r, p, t, e)
 
         # it reaches the view-synthesis loss
-        from ..depth.losses import view_synthesis_loss
+        from ..depth.losses import LossConfig, view_synthesis_loss
         from ..world import Camera
+        from .adapters import photometric_error
         cam = Camera(8, 16)
         tgt = rng.uniform(0.2, 0.8, (1, 3, 8, 16)).astype(np.float32)
         srcs = [rng.uniform(0.2, 0.8, (1, 3, 8, 16)).astype(np.float32) for _ in range(2)]
         disp = Tensor(np.full((1, 1, 8, 16), 0.5, np.float32), requires_grad=True)
         poses = Tensor(np.array([[[0.05, 0.0, 0.3, 0.0, 0.01, 0.0],
                                   [-0.05, 0.0, -0.3, 0.0, -0.01, 0.0]]], np.float32))
-        loss, _ = _call(r, path, "the view-synthesis loss with your error",
-                        view_synthesis_loss, tgt, srcs, [disp], poses, cam.K,
-                        photometric_error=fn)
-        _call(r, path, "backward through the view-synthesis loss", loss.backward)
+        with photometric_error(fn):
+            loss, _ = _call(r, path, "the view-synthesis loss with your error",
+                            view_synthesis_loss, tgt, srcs, [disp], poses, cam.K,
+                            LossConfig(automask=False))
+            _call(r, path, "backward through the view-synthesis loss", loss.backward)
         if not math.isfinite(float(loss.data)) or disp.grad is None or not np.any(disp.grad):
             r.fail("the view-synthesis loss with your error is not finite, or gives no gradient "
                    "to the disparity", stop=True)
@@ -624,6 +623,34 @@ def check_photometric(path) -> Report:
              f"disparity)")
 
     return _run(Report("7 (depth loss)", path), path, body)
+
+
+def _photometric_kind(r, p: np.ndarray, t: np.ndarray, e: np.ndarray) -> None:
+    """Name the error ``e`` of ``p`` against ``t``: fit e = a (1 - SSIM) / 2 + b L1."""
+    from ..autograd import Tensor
+    from ..depth.losses import ssim_dissimilarity
+    l1 = np.abs(p - t).mean(axis=1).ravel()
+    ss = ssim_dissimilarity(Tensor(p), Tensor(t)).data.mean(axis=1).ravel()
+    A = np.stack([ss, l1], 1)
+    (a, b), *_ = np.linalg.lstsq(A, e.ravel(), rcond=None)
+    fit = np.abs(A @ np.array([a, b]) - e.ravel()).max()
+    if fit < 1e-6 and abs(a) < 1e-6 and abs(b - 1) < 1e-6:
+        r.fail("this is still plain L1 (the paper's Eq. 2)",
+               hint="return alpha * SSIM term + (1 - alpha) * L1 term with alpha = 0.85; "
+                    "the SSIM term is ag.mean(ssim_dissimilarity(pred, target), axis=1, "
+                    "keepdims=True)", stop=True)
+    if fit < 1e-6:
+        alpha = a / (a + b) if abs(a + b) > 1e-12 else float("nan")
+        r.ok(f"SSIM + L1 with alpha = {alpha:.3f} (monodepth2: 0.85)")
+        if abs(a + b - 1) > 1e-3:
+            r.note(f"the two weights add up to {a + b:.3f}, not 1: that rescales the "
+                   f"photometric term against the smoothness term")
+        if a < -1e-9 or b < -1e-9:
+            r.fail("a negative weight rewards mismatching images", stop=True)
+        r.summary = {"alpha": float(alpha)}
+    else:
+        r.note("your error is neither L1 nor an SSIM + L1 blend: fine if intended "
+               "(the checker cannot name it)")
 
 
 # =====================================================================================
@@ -750,63 +777,77 @@ def check_depth_errors(path) -> Report:
         else:
             r.ok("the same rng seed gives the same corruption")
 
-        # edge cases: one frame, everything near, everything far
-        cases = [("a single frame, shape (1, 32, 104)", depth[:1].copy()),
-                 ("a frame where everything is 0.4 m away (near)",
-                  np.full((1, H, W), 0.4, np.float32)),
-                 ("a frame where everything is 30 m away (far)",
-                  np.full((1, H, W), 30.0, np.float32))]
-        for name, d in cases:
-            xd = d.copy()
-            call = f"corrupt on {name}"
-            _as_depths(r, _call(r, path, call, fn, xd, np.random.default_rng(1)), d, call)
-            if not in_place and not np.array_equal(xd, d):
-                r.fail(f"{call} changed its input `depth` in place",
-                       hint="return a new array; leave `depth` as it is", stop=True)
-        r.ok("also works on a single frame, and on frames all near (0.4 m) or all far (30 m)")
+        _depth_edge_cases(r, path, fn, depth, in_place)
 
-        # how big is the error, and what shape? Next to the DispNet's
-        parts = log_error_parts(depth, y)
-        r.summary = {"log_error": parts}
-        if parts["total"] < 1e-9 and np.allclose(y, depth, rtol=1e-6, atol=0):
-            r.note("corrupt leaves the depth as it is: the paper's setting (train on clean GT "
-                   "depth), the same as --baseline. Write a corruption, then compare the "
-                   "two runs")
-        else:
-            keys = ["total", "per frame", "per column", "per row", "rest"]
-            head = f"{'':10}" + "".join(f"{k:>11}" for k in keys) + f"{'mean':>8}"
-            mine = f"{'yours':10}" + "".join(f"{parts[k]:11.3f}" for k in keys) + \
-                f"{parts['mean']:+8.3f}"
-            theirs = f"{'DispNet':10}" + "".join(f"{DISPNET_LOG_ERROR[k]:11.3f}" for k in keys)
-            r.note(f"std of your error in ln(depth), ln(corrupt(depth) / depth), on these {n} "
-                   f"frames (both clipped to 0.5-10 m, the range the Q-net reads), split per "
-                   f"frame / column / row / rest, next to the DispNet's (docs/experiments.md, "
-                   f"{RESULTS_SECTION}):\n{head}\n{mine}\n{theirs}")
-            if parts["total"] > TOO_STRONG:
-                r.note(f"a std of {parts['total']:.2f} in ln(depth) (a typical depth off by a "
-                       f"factor {math.exp(parts['total']):.2f}) is probably too strong: the "
-                       f"DispNet's is {DISPNET_LOG_ERROR['total']}, and the library's "
-                       f"--depth-noise 0.3 (std about 0.38) already cost flights on GT depth "
-                       f"(docs/experiments.md, {RESULTS_SECTION})")
-            y3 = np.asarray(_call(r, path, what + " with another seed", fn, depth.copy(),
-                                  np.random.default_rng(1)))
-            if y3.shape == y.shape and np.array_equal(y3, y):
-                r.note("the same corruption for every seed: a fixed distortion, which a "
-                       "network can learn to undo, rather than a random error")
+        _depth_error_size(r, path, fn, what, depth, y)
 
-        # it reaches the training flights
-        from ..rl.flights import Flights, depth_only
-        fl = Flights("basic", 4, seed=0, depth_fn=fn, config=_small_pool())
-        frames = _call(r, path, "the training flights' reset, with your corrupt", fl.reset)
-        _call(r, path, "the training flights' step, with your corrupt", fl.step,
-              np.zeros(4, np.int64))
-        gt = depth_only(fl.batch, fl.poses, fl.camera)
-        if not (np.all(np.isfinite(frames)) and frames.min() >= 0 and frames.max() <= 1):
-            r.fail("the training flights' frames with your corruption are not in [0, 1]",
-                   stop=True)
-        changed = not np.allclose(fl.last_depth, gt, rtol=1e-6, atol=0)
-        r.ok("reaches the training flights: the Q-net trains on " +
-             ("your corrupted depth" if changed else "GT depth (unchanged)") +
-             "; the test flights stay on the depth as it is")
+        _depth_reaches_training(r, path, fn)
 
     return _run(Report("8 (depth errors)", path), path, body)
+
+
+def _depth_edge_cases(r, path, fn, depth: np.ndarray, in_place: bool) -> None:
+    """One frame, everything near, everything far."""
+    _, H, W = depth.shape
+    cases = [("a single frame, shape (1, 32, 104)", depth[:1].copy()),
+             ("a frame where everything is 0.4 m away (near)",
+              np.full((1, H, W), 0.4, np.float32)),
+             ("a frame where everything is 30 m away (far)",
+              np.full((1, H, W), 30.0, np.float32))]
+    for name, d in cases:
+        xd = d.copy()
+        call = f"corrupt on {name}"
+        _as_depths(r, _call(r, path, call, fn, xd, np.random.default_rng(1)), d, call)
+        if not in_place and not np.array_equal(xd, d):
+            r.fail(f"{call} changed its input `depth` in place",
+                   hint="return a new array; leave `depth` as it is", stop=True)
+    r.ok("also works on a single frame, and on frames all near (0.4 m) or all far (30 m)")
+
+
+def _depth_error_size(r, path, fn, what: str, depth: np.ndarray, y: np.ndarray) -> None:
+    """How big the error is, and of what shape, next to the DispNet's."""
+    n = len(depth)
+    parts = log_error_parts(depth, y)
+    r.summary = {"log_error": parts}
+    if parts["total"] < 1e-9 and np.allclose(y, depth, rtol=1e-6, atol=0):
+        r.note("corrupt leaves the depth as it is: the paper's setting (train on clean GT "
+               "depth), the same as --baseline. Write a corruption, then compare the "
+               "two runs")
+    else:
+        keys = ["total", "per frame", "per column", "per row", "rest"]
+        head = f"{'':10}" + "".join(f"{k:>11}" for k in keys) + f"{'mean':>8}"
+        mine = f"{'yours':10}" + "".join(f"{parts[k]:11.3f}" for k in keys) + \
+            f"{parts['mean']:+8.3f}"
+        theirs = f"{'DispNet':10}" + "".join(f"{DISPNET_LOG_ERROR[k]:11.3f}" for k in keys)
+        r.note(f"std of your error in ln(depth), ln(corrupt(depth) / depth), on these {n} "
+               f"frames (both clipped to 0.5-10 m, the range the Q-net reads), split per "
+               f"frame / column / row / rest, next to the DispNet's (docs/experiments.md, "
+               f"{RESULTS_SECTION}):\n{head}\n{mine}\n{theirs}")
+        if parts["total"] > TOO_STRONG:
+            r.note(f"a std of {parts['total']:.2f} in ln(depth) (a typical depth off by a "
+                   f"factor {math.exp(parts['total']):.2f}) is probably too strong: the "
+                   f"DispNet's is {DISPNET_LOG_ERROR['total']}, and a smooth noise of std "
+                   f"about 0.38 in training already cost flights on GT depth "
+                   f"(docs/experiments.md, {RESULTS_SECTION})")
+        y3 = np.asarray(_call(r, path, what + " with another seed", fn, depth.copy(),
+                              np.random.default_rng(1)))
+        if y3.shape == y.shape and np.array_equal(y3, y):
+            r.note("the same corruption for every seed: a fixed distortion, which a "
+                   "network can learn to undo, rather than a random error")
+
+
+def _depth_reaches_training(r, path, fn) -> None:
+    """The corruption reaches the training flights' frames."""
+    from ..rl.flights import Flights, depth_only
+    fl = Flights("basic", 4, seed=0, depth_fn=fn, config=_small_pool())
+    frames = _call(r, path, "the training flights' reset, with your corrupt", fl.reset)
+    _call(r, path, "the training flights' step, with your corrupt", fl.step,
+          np.zeros(4, np.int64))
+    gt = depth_only(fl.batch, fl.poses, fl.camera)
+    if not (np.all(np.isfinite(frames)) and frames.min() >= 0 and frames.max() <= 1):
+        r.fail("the training flights' frames with your corruption are not in [0, 1]",
+               stop=True)
+    changed = not np.allclose(fl.last_depth, gt, rtol=1e-6, atol=0)
+    r.ok("reaches the training flights: the Q-net trains on " +
+         ("your corrupted depth" if changed else "GT depth (unchanged)") +
+         "; the test flights stay on the depth as it is")

@@ -1,4 +1,4 @@
-"""A checker's verdict, as a list of lines a student can read.
+"""A checker's findings, as a list of lines a student can read.
 
 Every check adds one line: ``ok`` (passed), ``fail`` (must be fixed, with a hint on how)
 or ``note`` (worth knowing, not an error). A check that cannot go on (the file does not
