@@ -51,7 +51,7 @@ def test_collect_train_eval_smoke(tmp_path, capsys):
     assert _run(["train-depth", *SMOKE, "--seed", "3", "--resume", "--dir", str(run)]) == 0
     assert "resuming at iteration 3" in capsys.readouterr().out
     assert DepthEstimator.load(run / "checkpoint.npz").meta["iteration"] == 3
-    for extra in ([], ["--flip-tta"], ["--by-depth", "--pictures", str(tmp_path / "p.png")]):
+    for extra in ([], ["--flip-tta"], ["--pictures", str(tmp_path / "p.png")]):
         assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
                      str(run / "test.npz"), "--json", str(tmp_path / "m.json"), *extra]) == 0
         got = json.loads((tmp_path / "m.json").read_text())
@@ -63,7 +63,7 @@ def test_fine_tune_from_a_model_file_on_given_frames(tmp_path, capsys):
     """--init-from a model file, --data/--test-data given: the recorded command names
     them, and the model file records the collect command of its frames."""
     frames = tmp_path / "frames.npz"
-    assert _run(["collect", "--frames", "60", "--seed", "7", "--late-turns", "0.5",
+    assert _run(["collect", "--frames", "60", "--seed", "7", "--set", "late_turns=0.5",
                  "--out", str(frames)]) == 0
     run = tmp_path / "tuned"
     assert _run(["train-depth", *SMOKE, "--data", str(frames), "--test-data",
@@ -74,7 +74,7 @@ def test_fine_tune_from_a_model_file_on_given_frames(tmp_path, capsys):
     for part in ("--data " + str(frames), "--init-from", "--set full_res=True",
                  "--set gyro_yaw=True"):
         assert part in meta["command"], meta["command"]
-    assert "--late-turns 0.5" in meta["data_command"] and "--seed 7" in meta["data_command"]
+    assert "late_turns=0.5" in meta["data_command"] and "--seed 7" in meta["data_command"]
     assert meta["config"]["loss"]["full_res"] and meta["config"]["gyro_yaw"]
 
 
@@ -97,7 +97,7 @@ def test_recorded_command_parses_back(tmp_path):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["collect", "--late-turns", "2"], "--late-turns: expected a number in [0.0, 1.0]"),
+    (["collect", "--set", "late_turns=2"], "--set late_turns: expected a number in [0.0, 1.0]"),
     (["collect", "--scenario", "moon"], "invalid choice"),
     (["train-depth", "--iterations", "0"], "--iterations: expected a number >= 1; got 0"),
     (["train-depth", "--lr", "nan"], "--lr: expected a finite number"),

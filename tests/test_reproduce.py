@@ -17,7 +17,7 @@ def test_reproduce_pipeline_smoke(tmp_path):
     for sc in TRANSFER:                # the shipped recipe: from basic's last DispNet
         command = json.loads((depth / sc / "results.json").read_text())["command"]
         assert f"--init-from {depth / 'basic_long' / 'model.npz'}" in command, command
-        assert "full_res=True" in command and "--late-turns 0.5" in command, command
+        assert "full_res=True" in command and "late_turns=0.5" in command, command
     agents = sorted(p.name for p in (tmp_path / "agent").iterdir())
     assert len(agents) == 2 * len(FAMILY)               # each trained, then fine-tuned
     assert sum(a.endswith("_finetuned") for a in agents) == len(FAMILY)

@@ -13,8 +13,8 @@ import math
 
 import numpy as np
 
-from ..world.stepper import accepts_yaw_rate
 from ..depth.evaluate import log_error_parts
+from ..world.stepper import accepts_yaw_rate
 from .loader import describe, get_callable, get_value, load_student_module, where_in
 from .report import Report, Stop
 

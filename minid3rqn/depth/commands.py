@@ -103,8 +103,6 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flip-tta", action="store_true",
                    help="average the disparity with its value on the mirrored frame, "
                         "mirrored back (test-time flip)")
-    p.add_argument("--by-depth", action="store_true",
-                   help="also print the errors per GT-depth bin (where the errors are)")
     p.add_argument("--pictures", default=None, help="PNG: RGB | predicted | GT rows")
     p.add_argument("--json", default=None, help="write the metrics here")
 
@@ -122,13 +120,12 @@ def run_eval_depth(args) -> int:
     t0 = time.time()
     results = evaluate(estimator, test)
     results["seconds"] = round(time.time() - t0, 2)
-    if args.by_depth:
-        rows = errors_by_depth(estimator.predict(test.rgb), test.depth)
-        print("GT depth (m)   share   abs rel   signed rel (> 0: too far)   [median-scaled]")
-        for r in rows:
-            print(f"{r['from_m']:4.0f} - {r['to_m']:<4.0f}    {r['share']:.2f}    "
-                  f"{r['abs_rel']:.3f}     {r['signed_rel']:+.3f}")
-        results["by_depth"] = rows
+    rows = errors_by_depth(estimator.predict(test.rgb), test.depth)   # where the errors are
+    print("GT depth (m)   share   abs rel   signed rel (> 0: too far)   [median-scaled]")
+    for r in rows:
+        print(f"{r['from_m']:4.0f} - {r['to_m']:<4.0f}    {r['share']:.2f}    "
+              f"{r['abs_rel']:.3f}     {r['signed_rel']:+.3f}")
+    results["by_depth"] = rows
     if args.pictures:
         rows = np.linspace(0, len(test) - 1, 6).astype(int)
         comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]),

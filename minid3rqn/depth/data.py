@@ -47,8 +47,8 @@ class CollectConfig:
     seed: int = setting(0, "flight f flies in the world of seed x 100003 + f", source="run")
     late_turns: float = setting(0.0, "share of the pilot's segments flown straight at "
                                      "obstacles, swerving late (0: the careful pilot)",
-                                source="ours", check=between(0.0, 1.0), cli="main")
-    frame_dt: float = setting(FRAME_DT, "seconds between frames", source="paper",
+                                source="ours", check=between(0.0, 1.0))
+    frame_dt: float = setting(FRAME_DT, "seconds between frames", source="paper", cli="more",
                               check=lambda v: None if 0 < v <= 2 else "seconds in (0, 2]")
     frames_per_flight: int = setting(50, "the longest flight, in frames", source="ours",
                                      check=at_least(3))

@@ -61,7 +61,8 @@ class TrainConfig:
     """The settings of one depth training run (see the module docstring)."""
     iterations: int = setting(3000, "training iterations (paper: 30000 at 128x416)",
                               source="budget", check=at_least(1))
-    batch_size: int = setting(4, "triplets per iteration", source="paper", check=at_least(1))
+    batch_size: int = setting(4, "triplets per iteration", source="paper", cli="more",
+                              check=at_least(1))
     lr: float = setting(5e-4, "Adam's learning rate (paper: 5e-5; 10x trains faster here)",
                         source="budget", check=positive)
     seed: int = setting(0, "weights, batches, flips, gyro noise (and the frames train-depth "

@@ -52,7 +52,7 @@ class AgentConfig:
     gamma: float = setting(0.99, "discount factor", source="paper", check=between(0, 1))
     lr: float = setting(3e-4, "Adam step size", source="paper", check=positive)
     target_update: int = setting(300, "updates between target-net refreshes",
-                                 source="paper", check=at_least(1))
+                                 source="paper", cli="more", check=at_least(1))
     huber_delta: float = setting(1.0, "Huber loss: quadratic within +-delta (the paper "
                                       "does not give its loss)", check=positive)
     grad_clip: float = setting(10.0, "clip the gradient's global norm to this",

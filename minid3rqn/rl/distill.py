@@ -63,7 +63,7 @@ def student() -> TrainConfig:
 
 
 # The distil command's options; the other settings are given with --set NAME=VALUE.
-DISTIL_OPTIONS = ("teachers", "init_model", "steps", "seed", "depth")
+DISTIL_OPTIONS = ("teachers", "init_model", "steps", "seed")
 
 
 @dataclass
