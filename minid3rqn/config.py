@@ -243,13 +243,20 @@ def add_arguments(parser: argparse.ArgumentParser, cls, defaults=None,
                 kwargs["metavar"] = "{" + ",".join(map(str, f.metadata["choices"])) + "}"
         groups[source].add_argument(flag(name), **kwargs)
     if more:
-        others = parser.add_argument_group("other settings")
-        others.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                            dest="cfg_set", help="change any other setting (listed below); "
-                                                 "repeatable")
-        epilog = "other settings (--set NAME=VALUE), with their defaults:\n" + "\n".join(more)
-        parser.epilog = (parser.epilog + "\n\n" if parser.epilog else "") + epilog
+        if "--set" not in parser._option_string_actions:    # one --set for all configs
+            others = parser.add_argument_group("other settings")
+            others.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                                dest="cfg_set", help="change any other setting (listed "
+                                                     "below); repeatable")
+            parser.epilog = ((parser.epilog + "\n\n" if parser.epilog else "")
+                             + "other settings (--set NAME=VALUE), with their defaults:")
+        parser.epilog += "\n" + "\n".join(more)
         parser.formatter_class = argparse.RawDescriptionHelpFormatter
+
+
+def setting_names(cls) -> set[str]:
+    """The names of every setting of ``cls``, nested configs' included."""
+    return {path[-1] for path, _, _ in _leaves(cls)}
 
 
 def _get(cfg, path):

@@ -21,7 +21,7 @@ import time
 from dataclasses import fields
 from pathlib import Path
 
-from ..config import UsageError, add_arguments, from_args
+from ..config import UsageError, add_arguments, from_args, setting_names
 from ..io import MODELS
 from .data import CollectConfig, collect_sequence, held_out, load_sequence
 from .train import TrainConfig, train_depth
@@ -29,12 +29,17 @@ from .train import TrainConfig, train_depth
 RUNS = Path("runs/depth")
 
 
-def _options(args: argparse.Namespace, cls, with_set: bool = False) -> argparse.Namespace:
-    """The parsed options of config ``cls`` alone (one parser holds two configs)."""
+def _options(args: argparse.Namespace, cls, other=None) -> argparse.Namespace:
+    """The parsed options of config ``cls`` alone (one parser may hold two configs, ``cls``
+    and ``other``: each ``--set NAME=VALUE`` goes to the one that has NAME)."""
     names = {f.name for f in fields(cls)}
     kept = {k: v for k, v in vars(args).items()
             if k.startswith("cfg__") and k.split("__")[1] in names}
-    return argparse.Namespace(**kept, cfg_set=getattr(args, "cfg_set", []) if with_set else [])
+    own = setting_names(cls)
+    sets = [item for item in getattr(args, "cfg_set", None) or []
+            if item.partition("=")[0] in own
+            or other is None or item.partition("=")[0] not in setting_names(other)]
+    return argparse.Namespace(**kept, cfg_set=sets)
 
 
 # -- collect -----------------------------------------------------------------------------
@@ -76,8 +81,8 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
 
 
 def run_train_depth(args) -> int:
-    cfg = from_args(TrainConfig, _options(args, TrainConfig, with_set=True))
-    data = from_args(CollectConfig, _options(args, CollectConfig), seed=cfg.seed)
+    cfg = from_args(TrainConfig, _options(args, TrainConfig, CollectConfig))
+    data = from_args(CollectConfig, _options(args, CollectConfig, TrainConfig), seed=cfg.seed)
     if args.init_from and not Path(args.init_from).is_file():
         raise UsageError(f"--init-from: no file {args.init_from!r}")
     run_dir = Path(args.dir or RUNS / data.scenario)
