@@ -10,7 +10,7 @@ same number, so both sides get the same cores. Every case runs in float32; times
 the best of ``--repeat`` runs after two warm-ups, ours and torch alternating (the
 machine may be shared: the minimum is the least disturbed run). "fwd" is inference
 (no graph), "f+b" a forward that records the graph plus the backward pass; "ratio"
-is ours / torch for f+b (the issue's target: <= 2.0).
+is ours / torch for f+b (our aim: <= 2.0).
 
 On a busy machine, ``--clock cpu --threads 1`` times with the process's CPU time
 instead of the wall clock: preemption by other processes no longer counts (cache and

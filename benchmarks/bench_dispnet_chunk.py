@@ -16,11 +16,10 @@ the largest difference from the chunk-8 output: 0.0 means the chunk changes only
 speed, not a single bit of any evaluation (a GEMM may round differently when its row
 count changes; if it does, changing the default would change every predicted depth).
 
-Measured on an AMD EPYC (twenty-ninth session; docs/experiments.md, "The short chain timed
-from nothing, its students in the transfer worlds, and a faster ELU"): chunks of 2 to
-64 within a few percent of each other, and not to the bit, so the default stays 8.
+On a 2-core AMD EPYC, chunks of 2 to 64 run within a few percent of each other, and
+not to the bit, so the default stays 8.
 
-``--elu`` (twenty-ninth session) instead times where a frame's time goes: the DispNet
+``--elu`` instead times where a frame's time goes: the DispNet
 in chunks of 8 with its in-place bias + ELU as shipped (``exp(x) - 1``), as it was
 before (``expm1``, the arithmetic of ``ag.elu``), and replaced by a no-op (what is left:
 the convolutions and the copies between layers; the outputs are then wrong, only the
@@ -29,7 +28,7 @@ array the size of the DispNet's largest layer for 8 frames.
 
     python benchmarks/bench_dispnet_chunk.py --elu
 
-``--layers`` (thirty-seventh session) times each convolution of the DispNet (chunks of
+``--layers`` times each convolution of the DispNet (chunks of
 8, as shipped) and reports its ms per frame and the GFLOP/s its GEMMs reach, beside the
 ceiling (``bench_autograd``'s 1024^3 float32 ``np.matmul``, best of ``--repeat``, same
 thread), then the time in the bias + ELU and in everything else (the copies between
@@ -97,8 +96,8 @@ def caches() -> dict:
 
 
 def _elu_expm1_(y, bias, scratch, zeros):
-    """The inference ELU as it was until the twenty-eighth session (``ag.elu``'s
-    arithmetic to the bit)."""
+    """The inference ELU computed with ``expm1`` (``ag.elu``'s arithmetic to the
+    bit), for comparison with the shipped ``exp(x) - 1``."""
     if bias is not None:
         y += bias
     np.minimum(y, zeros, out=scratch)

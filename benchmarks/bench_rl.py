@@ -28,9 +28,9 @@ Measured (medians over ``--repeat`` runs after warm-ups, float32):
   (``evaluate --workers``; each process runs ``--threads`` BLAS threads).
 - The timed process keeps freed memory for reuse, as ``python -m minid3rqn`` does
   (minid3rqn/allocator.py); ``--default-malloc`` leaves glibc's allocator at its
-  defaults (the figures of the sessions before the forty-second).
+  defaults (to measure what keeping freed memory is worth).
 - ``--qnet FILE``: the framework and eval parts fly this Q-net instead of the shipped one
-  (e.g. a student with a wider LSTM, ``train-agent --init-widen``).
+  (e.g. the distilled student, minid3rqn/models/d3rqn_distil.npz, with its wider LSTM).
 - ``--ensemble N``: the framework and eval parts fly N copies of the D3RQN as an
   ensemble (``EnsemblePolicy``, docs/d3rqn.md section 10): N Q-net passes per step.
 - ``--mirror``: each Q-net also flies the mirrored view (``evaluate --mirror``,
@@ -219,10 +219,10 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
 
     One step is ``policy.act`` on the current frames, then ``Flights.step``: the world
     step (arc, clearance checks, reward, resets) and the next observation (render RGB,
-    DispNet depth). Each frame is rendered and its depth predicted once. (Until this
-    session the loop also re-rendered and re-predicted the current pose before acting,
-    doing the perception twice per step; ``rendered_twice`` runs that old loop.)
-    ``depth_model``: another DispNet file (e.g. a two-frame one, train-depth --prev-frame).
+    DispNet depth). Each frame is rendered and its depth predicted once
+    (``rendered_twice`` runs a loop that re-renders and re-predicts the current pose
+    before acting, doing the perception twice per step, for comparison).
+    ``depth_model``: another DispNet file (e.g. one of the transfer worlds').
     ``flip``: the DispNet's test-time flip (``--flip-tta``: two DispNet passes per frame).
     ``qnet``: another Q-net file (``--qnet``; e.g. a wider LSTM) instead of the shipped one.
     ``mirror``: each Q-net with its mirror image (``--mirror``)."""

@@ -5,8 +5,8 @@ Run (numbers in docs/world.md come from this command):
     OMP_NUM_THREADS=1 python benchmarks/bench_world.py --seed 0
 
 It keeps freed memory for reuse, as ``python -m minid3rqn`` does (minid3rqn/allocator.py);
-``--default-malloc`` leaves glibc's allocator at its defaults (the figures of the sessions
-before the forty-second).
+``--default-malloc`` leaves glibc's allocator at its defaults (to measure what keeping
+freed memory is worth).
 
 Each figure is the median CPU time (``time.thread_time``) of individually timed calls in
 one process on one core: CPU time leaves out the time other processes hold the core, so

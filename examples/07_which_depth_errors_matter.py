@@ -1,7 +1,7 @@
 """Which of the DispNet's errors cost the Q-net its flights?
 
 A D3RQN trained on ground-truth depth flies about 0.09 worse on the DispNet's depth,
-and a better DispNet (by abs rel) does not close the gap (docs/experiments.md). This
+and a better DispNet (by abs rel) does not close the gap (docs/beyond.md). This
 example asks *which* errors matter, by flying the same Q-net on views that are the
 DispNet's depth everywhere except in one part, where ground truth is put back:
 

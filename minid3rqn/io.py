@@ -120,7 +120,7 @@ def blas_core() -> str:
     every later step elsewhere, ends as another draw of the same recipe. The same seed
     gives the same run on machines with the same kernels; the environment variable
     ``OPENBLAS_CORETYPE`` (set before NumPy is imported) chooses them by hand. Training
-    commands record this name in their model files (docs/experiments.md, "Determinism across
+    commands record this name in their model files (docs/beyond.md, "Determinism across
     machines").
     """
     import ctypes

@@ -657,7 +657,7 @@ def _photometric_kind(r, p: np.ndarray, t: np.ndarray, e: np.ndarray) -> None:
 # Exercise 8: errors in the depth seen in training
 # =====================================================================================
 # The DispNet's error e = ln(predicted / GT depth) as measured on 1280 frames of test
-# flights (docs/experiments.md, "Two ways to make a GT-trained net robust to those errors"),
+# flights (docs/beyond.md, "Two ways to make a GT-trained net robust to those errors"),
 # split as ``depth.evaluate.log_error_parts`` splits a student's.
 DISPNET_LOG_ERROR = {"total": 0.146, "per frame": 0.044, "per column": 0.103,
                      "per row": 0.038, "rest": 0.086}
@@ -821,14 +821,14 @@ def _depth_error_size(r, path, fn, what: str, depth: np.ndarray, y: np.ndarray) 
         theirs = f"{'DispNet':10}" + "".join(f"{DISPNET_LOG_ERROR[k]:11.3f}" for k in keys)
         r.note(f"std of your error in ln(depth), ln(corrupt(depth) / depth), on these {n} "
                f"frames (both clipped to 0.5-10 m, the range the Q-net reads), split per "
-               f"frame / column / row / rest, next to the DispNet's (docs/experiments.md, "
+               f"frame / column / row / rest, next to the DispNet's (docs/beyond.md, "
                f"{RESULTS_SECTION}):\n{head}\n{mine}\n{theirs}")
         if parts["total"] > TOO_STRONG:
             r.note(f"a std of {parts['total']:.2f} in ln(depth) (a typical depth off by a "
                    f"factor {math.exp(parts['total']):.2f}) is probably too strong: the "
                    f"DispNet's is {DISPNET_LOG_ERROR['total']}, and a smooth noise of std "
                    f"about 0.38 in training already cost flights on GT depth "
-                   f"(docs/experiments.md, {RESULTS_SECTION})")
+                   f"(docs/beyond.md, {RESULTS_SECTION})")
         y3 = np.asarray(_call(r, path, what + " with another seed", fn, depth.copy(),
                               np.random.default_rng(1)))
         if y3.shape == y.shape and np.array_equal(y3, y):

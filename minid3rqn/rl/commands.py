@@ -171,7 +171,7 @@ def run_fly(args) -> int:
         print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
               f"result here: {recorded_text(recorded)}. See "
               f"{Path(model).with_suffix('.json').name} beside it, docs/results.md and "
-              "docs/experiments.md", file=sys.stderr)
+              "docs/beyond.md", file=sys.stderr)
     return 0
 
 

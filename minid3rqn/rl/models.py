@@ -22,7 +22,7 @@ from .policies import _trained, trained_actions, trained_camera
 MODELS = Path(__file__).resolve().parent.parent / "models"
 SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
 # The shipped Q-nets by name (fly --model NAME): the paper's training (the default), and
-# our distilled student (reproduce --recipe distil; docs/experiments.md).
+# our distilled student (reproduce --recipe distil; docs/beyond.md).
 SHIPPED_QNETS = {"paper": SHIPPED_QNET, "distil": MODELS / "d3rqn_distil.npz"}
 BASELINES = ("straight", "random", "reactive", "oracle")
 VARIANT_NAMES = {"ddqn": "DDQN", "d3qn": "D3QN", "ddrqn": "DDRQN", "d3rqn": "D3RQN"}

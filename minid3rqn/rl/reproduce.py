@@ -20,7 +20,7 @@ Everything lands in ``--out`` (results.json, results.md, one folder per run).
 a smoke test of the pipeline).
 
 ``--recipe distil`` runs instead our recipe for one D3RQN that flies ``basic`` at 0.95
-on predicted depth (``reproduce_distilled``; docs/experiments.md, "A loss on the greedy
+on predicted depth (``reproduce_distilled``; docs/beyond.md, "A loss on the greedy
 action"): not the paper's method, the way this project met its target.
 
 Every model lands with the ``train-agent`` or ``distil`` command that makes it alone.
