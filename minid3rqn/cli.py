@@ -42,7 +42,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         description="D3RQN obstacle avoidance from monocular depth, in pure NumPy.")
     sub = parser.add_subparsers(dest="command", metavar="<command>")
     for name, (module, help_text) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(name, help=help_text, description=help_text.replace("%%", "%"))
         p.set_defaults(_module=module, _name=name)
         if only is None or name == only:  # import a command's module only when it runs
             _hook(module, name, "add_arguments")(p)

@@ -232,7 +232,8 @@ def add_arguments(parser: argparse.ArgumentParser, cls, defaults=None,
             help_text = f"paper: {help_text}" if help_text else "paper"
         kind, _ = _base_type(hint)
         kwargs = dict(dest=f"cfg__{'__'.join(path)}", default=argparse.SUPPRESS,
-                      help=f"{help_text} (default: {value})".replace("%", "%%"))
+                      help=f"{help_text} (default: {'none' if value in ('', None) else value})"
+                      .replace("%", "%%"))
         if kind is bool:
             kwargs["action"] = argparse.BooleanOptionalAction
         else:

@@ -115,7 +115,8 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
                    help=f"baselines ({', '.join(BASELINES)}) and/or Q-net .npz files "
                         "(A.npz+B.npz+...: an ensemble, greedy on the members' mean Q-values)")
     add_arguments(p, EvalConfig)
-    p.add_argument("--json", default=None, help="append results to this JSON-lines file")
+    p.add_argument_group("files").add_argument(
+        "--json", default=None, help="append results to this JSON-lines file")
 
 
 def run_evaluate(args) -> int:

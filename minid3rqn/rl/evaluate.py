@@ -328,8 +328,8 @@ class EvalConfig:
     seed: int = setting(12345, "the test worlds' seed", source="run")
     depth: str = setting("gt", "what the policies read: GT depth or the DispNet's",
                          source="run", choices=("gt", "pred"))
-    depth_model: str = setting("", "DispNet .npz for --depth pred (default: the shipped "
-                                   "one of the scenario)", source="run")
+    depth_model: str = setting("", "DispNet .npz for --depth pred (empty: the shipped one "
+                                   "of the scenario)", source="run")
     chunk: int = setting(500, "flights stepped together", source="run", check=at_least(1))
     workers: int = setting(1, "processes flying the chunks, one per core (the same "
                               "result; run with OMP_NUM_THREADS=1)", source="run",
