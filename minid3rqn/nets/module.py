@@ -15,6 +15,14 @@ from ..autograd import Tensor
 from ..io import load_npz, save_npz
 
 
+def check_finite(arrays: dict[str, np.ndarray], path) -> None:
+    """ValueError if a weight read from ``path`` holds NaN or inf."""
+    for name, value in arrays.items():
+        if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+            raise ValueError(f"{str(path)!r}: weight {name!r} holds NaN or inf; a model "
+                             f"with non-finite weights cannot fly")
+
+
 class Module:
     training: bool = True
 
@@ -74,10 +82,7 @@ class Module:
     def load(self, path) -> dict | None:
         """Load parameters saved by ``save``; returns the metadata."""
         arrays, meta = load_npz(path)
-        for name, value in arrays.items():
-            if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
-                raise ValueError(f"{str(path)!r}: weight {name!r} holds NaN or inf; a "
-                                 f"model with non-finite weights cannot fly")
+        check_finite(arrays, path)
         self.load_state_dict(arrays)
         return meta
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import UsageError, add_arguments, from_args
+from ..io import append_jsonl
 from .models import depth_estimator_for, recorded_result, recorded_text
 
 RUNS = Path("runs")
@@ -129,8 +130,7 @@ def run_evaluate(args) -> int:
         except ValueError as e:
             raise UsageError(f"evaluate {e}") from None
         if args.json:
-            with open(args.json, "a") as f:
-                f.write(json.dumps(record) + "\n")
+            append_jsonl(args.json, record)
     return 0
 
 

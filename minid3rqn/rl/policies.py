@@ -162,7 +162,14 @@ class QNetPolicy(Policy):
     def load(cls, path, name: str | None = None) -> "QNetPolicy":
         """A Q-net file; its metadata (how it was trained) is kept as ``meta``."""
         from ..io import load_npz
+        from ..nets.module import check_finite
         arrays, meta = load_npz(path)
+        if "qnet_config" not in (meta or {}):
+            what = "a depth model" if "disp" in " ".join(arrays) or (meta or {}).get("config") \
+                else "no Q-net"
+            raise ValueError(f"{str(path)!r} is {what}, not a Q-net file (expected a model "
+                             f"written by train-agent or distil)")
+        check_finite(arrays, path)
         net = QNet(QNetConfig(**meta["qnet_config"]), rng=0)
         net.load_state_dict(arrays)
         pol = cls(net, name)
