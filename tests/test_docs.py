@@ -1,8 +1,8 @@
 """The documentation's links: every relative link in README.md and docs/ points at a file
 that exists, and every ``#anchor`` at a heading of that file (as GitHub renders it).
 
-docs/results.md and docs/beyond.md cite each other's sections by link; when a
-section is renamed or moved, this test names the link that broke.
+The method pages, docs/results.md and docs/beyond.md cite each other's sections by
+link; when a section is renamed or moved, this test names the link that broke.
 """
 import re
 from pathlib import Path
@@ -55,8 +55,10 @@ def anchors(path: Path) -> set:
 
 
 def test_slug_follows_github():
-    assert slug("Ensembles of D3RQNs (7 nets; our addition, not the paper's method)") \
-        == "ensembles-of-d3rqns-7-nets-our-addition-not-the-papers-method"
+    assert slug("10. Ensembles and the mirror image (ours)") \
+        == "10-ensembles-and-the-mirror-image-ours"
+    assert slug("Tables 5 and 6: the paper's, on `basic` (ours)") \
+        == "tables-5-and-6-the-papers-on-basic-ours"
     assert slug("What the transfer worlds ask: pillars beside walls, and a denser `basic`") \
         == "what-the-transfer-worlds-ask-pillars-beside-walls-and-a-denser-basic"
     assert slug("Better depth at 2-4 m? Frames") == "better-depth-at-2-4-m-frames"
