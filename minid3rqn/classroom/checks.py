@@ -602,20 +602,18 @@ def check_photometric(path) -> Report:
         _photometric_kind(r, p, t, e)
 
         # it reaches the view-synthesis loss
-        from ..depth.losses import LossConfig, view_synthesis_loss
+        from ..depth.losses import view_synthesis_loss
         from ..world import Camera
-        from .adapters import photometric_error
         cam = Camera(8, 16)
         tgt = rng.uniform(0.2, 0.8, (1, 3, 8, 16)).astype(np.float32)
         srcs = [rng.uniform(0.2, 0.8, (1, 3, 8, 16)).astype(np.float32) for _ in range(2)]
         disp = Tensor(np.full((1, 1, 8, 16), 0.5, np.float32), requires_grad=True)
         poses = Tensor(np.array([[[0.05, 0.0, 0.3, 0.0, 0.01, 0.0],
                                   [-0.05, 0.0, -0.3, 0.0, -0.01, 0.0]]], np.float32))
-        with photometric_error(fn):
-            loss, _ = _call(r, path, "the view-synthesis loss with your error",
-                            view_synthesis_loss, tgt, srcs, [disp], poses, cam.K,
-                            LossConfig(automask=False))
-            _call(r, path, "backward through the view-synthesis loss", loss.backward)
+        loss, _ = _call(r, path, "the view-synthesis loss with your error",
+                        view_synthesis_loss, tgt, srcs, [disp], poses, cam.K,
+                        photometric_error=fn)
+        _call(r, path, "backward through the view-synthesis loss", loss.backward)
         if not math.isfinite(float(loss.data)) or disp.grad is None or not np.any(disp.grad):
             r.fail("the view-synthesis loss with your error is not finite, or gives no gradient "
                    "to the disparity", stop=True)
