@@ -90,8 +90,8 @@ def test_recorded_command_parses_back(tmp_path):
     p = argparse.ArgumentParser()
     commands.add_arguments_train_depth(p)
     args = p.parse_args(shlex.split(line)[4:])    # after "python -m minid3rqn train-depth"
-    assert from_args(TrainConfig, commands._options(args, TrainConfig, with_set=True)) == cfg
-    assert from_args(CollectConfig, commands._options(args, CollectConfig), seed=2) == data
+    assert from_args(TrainConfig, commands._options(args, TrainConfig, CollectConfig)) == cfg
+    assert from_args(CollectConfig, commands._options(args, CollectConfig, TrainConfig), seed=2) == data
     assert (args.dir, args.data, args.test_data, args.init_from) == (
         str(tmp_path / "run"), str(tmp_path / "t.npz"), None, str(tmp_path / "init.npz"))
 
