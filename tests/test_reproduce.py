@@ -51,7 +51,7 @@ def test_reproduce_distilled_smoke(tmp_path):
                  "--depth-model "]:
         assert flag in meta["command"], (flag, meta["command"])
     stage1 = load_npz(agents / "stage1_gt" / "model.npz")[1]["command"]
-    for flag in ["--set init_widen=True", "--depth gt", "--set distil_kl=0.0",
+    for flag in ["--set init_widen=True", "--set depth=gt", "--set distil_kl=0.0",
                  "--set mirror_augment=False",
                  "--init-model " + str(agents / "parent_wide_s0" / "model.npz")]:
         assert flag in stage1, (flag, stage1)
