@@ -1,5 +1,6 @@
 """Smoke runs: training, resume, evaluation, baselines, the CLI hooks and the shipped model."""
 import json
+import os
 import re
 import subprocess
 import sys
@@ -326,8 +327,10 @@ def test_examples_smoke(script, tmp_path):
     path = ROOT / "examples" / script
     if not path.exists():
         pytest.skip(f"{script} not written yet")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(   # this tree's package, not another
+        filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     out = subprocess.run([sys.executable, str(path), "--smoke", "--out", str(tmp_path)],
-                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+                         capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
     assert out.returncode == 0, out.stderr[-2000:]
 
 
