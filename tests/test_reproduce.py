@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from minid3rqn.io import load_npz
-from minid3rqn.rl.reproduce import FAMILY, TRANSFER, reproduce, reproduce_distilled
+from minid3rqn.rl.reproduce import (FAMILY, QUICK_FAMILY, TRANSFER, reproduce, reproduce_distilled,
+                                    reproduce_quick)
+from minid3rqn.rl.train import SMOKE
 
 
 def test_reproduce_pipeline_smoke(tmp_path):
@@ -26,6 +28,28 @@ def test_reproduce_pipeline_smoke(tmp_path):
     saved = json.loads((tmp_path / "results.json").read_text())
     assert saved["table5"] == res["table5"]
     assert "Table 6" in (tmp_path / "results.md").read_text()
+
+
+def test_reproduce_quick_smoke(tmp_path):
+    """The quick reproduction at smoke size: the four nets on the shipped DispNet's depth,
+    their checkpoints removed, Tables 5 and 6 on the test worlds with the paper's column
+    and the note on what it can show; a second run reuses the finished nets."""
+    budget = {**SMOKE, "hidden": 16, "replay_capacity": 4_000, "flights": 4}
+    res = reproduce_quick(tmp_path, budget=budget)
+    agents = tmp_path / "quick" / "agent"
+    for v in QUICK_FAMILY:
+        assert (agents / v / "model.npz").is_file() and not (agents / v / "checkpoint.npz").exists()
+        assert "--depth pred" in load_npz(agents / v / "model.npz")[1]["command"]
+    assert [r["policy"] for r in res["table5"]] == ["Straight", "Random", "D3RQN", "DDRQN",
+                                                    "D3QN", "DDQN"]
+    assert {r["scenario"] for r in res["table6"]} == set(TRANSFER)
+    assert all(r["depth"] == "pred" and r["seed"] == 271828 for r in res["table5"] + res["table6"])
+    text = (tmp_path / "quick" / "results.md").read_text()
+    assert "0.994" in text and "cannot show" in text and "python -m minid3rqn reproduce" in text
+    stamp = {v: (agents / v / "model.npz").stat().st_mtime_ns for v in QUICK_FAMILY}
+    again = reproduce_quick(tmp_path, budget=budget)
+    assert stamp == {v: (agents / v / "model.npz").stat().st_mtime_ns for v in QUICK_FAMILY}
+    assert [r["rate"] for r in again["table5"]] == [r["rate"] for r in res["table5"]]
 
 
 def _weights(agents):
@@ -99,6 +123,7 @@ def test_reproduce_students_error():
     (["--students", "0"], "--students: expected a number >= 1; got 0"),
     (["--students", "2"], "--students 2: only for --recipe distil"),
     (["--recipe", "distil-short"], "argument --recipe: invalid choice"),
+    (["--quick", "--recipe", "distil"], "--quick: the paper's recipe on the shipped DispNets"),
 ])
 def test_reproduce_cli_errors(argv, message, tmp_path, capsys):
     """Settings the recipes cannot honour stop before any training, naming the flag."""

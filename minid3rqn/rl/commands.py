@@ -184,15 +184,19 @@ def add_arguments_reproduce(p: argparse.ArgumentParser) -> None:
 
 
 def run_reproduce(args) -> int:
-    from .reproduce import ReproduceConfig, reproduce, reproduce_distilled
+    from .reproduce import ReproduceConfig, reproduce, reproduce_distilled, reproduce_quick
     cfg = from_args(ReproduceConfig, args)
-    if cfg.recipe == "paper":
-        if cfg.students != 1:
-            raise UsageError(f"--students {cfg.students}: only for --recipe distil")
-        reproduce(Path(args.out), quick=cfg.quick, skip_depth=cfg.skip_depth,
-                  workers=cfg.workers)
+    if cfg.students != 1 and cfg.recipe != "distil":
+        raise UsageError(f"--students {cfg.students}: only for --recipe distil")
+    if cfg.quick and (cfg.recipe != "paper" or cfg.skip_depth):
+        raise UsageError("--quick: the paper's recipe on the shipped DispNets; it takes "
+                         "neither --recipe distil nor --skip-depth")
+    if cfg.quick:
+        reproduce_quick(Path(args.out), workers=cfg.workers)
+    elif cfg.recipe == "paper":
+        reproduce(Path(args.out), skip_depth=cfg.skip_depth, workers=cfg.workers)
     else:
-        reproduce_distilled(Path(args.out), quick=cfg.quick, skip_depth=cfg.skip_depth,
+        reproduce_distilled(Path(args.out), skip_depth=cfg.skip_depth,
                             workers=cfg.workers, students=cfg.students)
     return 0
 

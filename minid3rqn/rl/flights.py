@@ -72,12 +72,6 @@ def depth_only(batch: SceneBatch, poses: np.ndarray, camera: Camera) -> np.ndarr
     return render_depth_batch(batch, poses, camera)
 
 
-
-def depth_only(batch: SceneBatch, poses: np.ndarray, camera: Camera) -> np.ndarray:
-    """GT pinhole depth (n, H, W) without colours (see ``world.render_depth_batch``)."""
-    return render_depth_batch(batch, poses, camera)
-
-
 class Flights:
     """``n`` parallel flights in ``scenario``; see the module docstring.
 
