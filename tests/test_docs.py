@@ -84,3 +84,34 @@ def test_relative_links_resolve(path):
             broken.append(f"[{text}]({target}): no heading with anchor #{anchor} in "
                           f"{dest.relative_to(ROOT)}")
     assert not broken, f"{path.relative_to(ROOT)}: broken links:\n" + "\n".join(broken)
+
+
+CELL = re.compile(r"([01]\.\d+) \[([01]\.\d+), ([01]\.\d+)\]")
+SCENARIOS = ("basic", "channel", "intersections", "corners")
+
+
+def test_readme_results_are_the_recorded_test_world_evaluations():
+    """Each figure of the README's results table is an evaluation on the test worlds
+    recorded in the JSON beside its shipped model (rate and interval by world)."""
+    import json
+    rows = [line for line in (ROOT / "README.md").read_text().split("\n")
+            if line.startswith("| ") and len(CELL.findall(line)) > 0]
+    assert rows, "no model rows in the README's results table"
+    model = None
+    for row in rows:
+        names = re.findall(r"(d3rqn_\w+)\.npz", row)
+        model = names[0] if names else model      # "the same + ..." rows: the row above's
+        mirror = "--mirror" in row
+        record = json.loads((ROOT / "minid3rqn" / "models" / f"{model}.json").read_text())
+        cells = CELL.findall(row)
+        assert len(cells) == len(SCENARIOS), row
+        for scenario, (rate, lo, hi) in zip(SCENARIOS, cells):
+            found = [e for e in record["evaluations"]
+                     if e.get("worlds_set") == "test" and e["scenario"] == scenario
+                     and e["depth"] == "pred" and bool(e.get("mirror")) == mirror
+                     and not e.get("flip_tta") and e["flights"] >= 2000]
+            assert found, (model, scenario, mirror)
+            e = found[0]
+            assert float(rate) == e["rate"], (model, scenario, rate, e["rate"])
+            assert [float(lo), float(hi)] == [round(v, 3) for v in e["ci95_by_world"]], \
+                (model, scenario, lo, hi, e["ci95_by_world"])
