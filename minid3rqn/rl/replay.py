@@ -119,10 +119,6 @@ class EpisodeReplay:
         """Number of stored transitions (slots with a next frame)."""
         return int(self.has_next.sum())
 
-    def _valid(self, s: int, i: np.ndarray) -> np.ndarray:
-        """Absolute index i of stream s still in the ring and written."""
-        return (i >= self.count[s] - self.cap) & (i < self.count[s])
-
     def sample(self, batch_size: int, seq_len: int = 5, stack: int = 1) -> SequenceBatch:
         """``batch_size`` windows of ``seq_len`` transitions, ``stack`` frames per step."""
         L, B = int(seq_len), int(batch_size)
