@@ -136,15 +136,8 @@ class Tensor:
     def __len__(self) -> int:
         return len(self.data)
 
-    def numpy(self) -> np.ndarray:
-        return self.data
-
     def item(self) -> float:
         return self.data.item()
-
-    def detach(self) -> "Tensor":
-        """The same values, cut from the graph."""
-        return Tensor(self.data)
 
     def astype(self, dtype) -> "Tensor":
         return astype(self, dtype)
@@ -267,15 +260,6 @@ class Tensor:
             axes = tuple(axes[0])
         return transpose(self, axes or None)
 
-    def exp(self):
-        return exp(self)
-
-    def log(self):
-        return log(self)
-
-    def relu(self):
-        return relu(self)
-
 
 def _topological_order(root: Tensor) -> list[Tensor]:
     """Nodes reachable from ``root`` that require grad, parents before children.
@@ -308,6 +292,17 @@ def as_tensor(x, like: Tensor | None = None) -> Tensor:
     if isinstance(x, np.ndarray) and dtype is None:
         return Tensor(x)
     return Tensor(np.asarray(x, dtype=dtype if dtype is not None else np.float32))
+
+
+def float_tensor(value, name: str, op: str) -> Tensor:
+    """``value`` as a Tensor, or a TypeError naming the argument if it holds no floats."""
+    if isinstance(value, Tensor):
+        return value
+    array = np.asarray(value)
+    if array.dtype not in FLOAT_DTYPES:
+        raise TypeError(f"{op}: {name} must hold float32 or float64 values; got dtype "
+                        f"{array.dtype}")
+    return as_tensor(array)
 
 
 def unbroadcast(grad: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

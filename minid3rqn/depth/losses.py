@@ -53,9 +53,10 @@ import numpy as np
 from .. import autograd as ag
 from ..autograd import Tensor
 from ..autograd.conv import upsample
+from ..autograd.shape import crop
 from ..config import at_least, between, setting, validate
 from .data import FRAME_DT, SPEED
-from .geometry import crop, inverse_warp, pose_vec_to_mat, scale_intrinsics
+from .geometry import inverse_warp, pose_vec_to_mat, scale_intrinsics
 
 
 # -- the paper: Eq. 2 and Eq. 3 -----------------------------------------------------------
