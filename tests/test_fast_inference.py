@@ -136,7 +136,7 @@ def test_bias_elu_is_ag_elu_to_round_off(dtype):
 @pytest.mark.parametrize("kw, hw", [
     ({}, (32, 104)),                                                    # the shipped shape
     ({"encoder": (8, 12, 16), "decoder": (6, 8, 10), "n_scales": 2}, (20, 36)),  # crops
-    ({"encoder": (8, 12), "decoder": (4, 8), "double_conv": False, "n_scales": 1}, (15, 22)),
+    ({"encoder": (8, 12), "decoder": (4, 8), "n_scales": 1}, (15, 22)),
     ({"encoder": (8, 12, 16, 24), "decoder": (8, 8, 12, 16), "init_disp": None}, (13, 9))])
 def test_dispnet_inference_equals_the_autograd_forward(dtype, tol, kw, hw):
     net = _random_net(dtype, **kw)

@@ -92,7 +92,7 @@ class DepthEstimator:
                              f"(no 'dispnet' metadata); write one with train-depth")
         c = meta["dispnet"]
         net = DispNet(tuple(c["encoder"]), tuple(c["decoder"]), c["n_scales"],
-                      c["disp_scale"], c["min_disp"], c.get("double_conv", True))
+                      c["disp_scale"], c["min_disp"])
         net.load_state_dict(arrays)
         return cls(net, meta.get("scale", 1.0), meta, flip)
 
