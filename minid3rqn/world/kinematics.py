@@ -143,11 +143,6 @@ def loiter_circles(poses, actions, spacing: float = 0.4) -> np.ndarray:
     return integrate_arc(poses, v[:, None], omega[:, None], taus)[..., :2]
 
 
-def wrap_angle(a):
-    """Angles wrapped into [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def paper_reward(d_nearest, collided):
     """The paper's reward (Eq. 4): R = d_nearest without collision, -1 on collision.
 
@@ -161,5 +156,4 @@ def paper_reward(d_nearest, collided):
 
 __all__ = ["ACTIONS", "ACTION_INTERVAL", "SAFE_DISTANCE", "MAX_SUBSTEP", "check_action_table",
            "integrate_arc", "n_substeps", "substep_poses", "plan_paths", "fly_plans",
-           "loiter_actions", "loiter_circles", "wrap_angle",
-           "paper_reward"]
+           "loiter_actions", "loiter_circles", "paper_reward"]

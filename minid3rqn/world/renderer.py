@@ -25,7 +25,7 @@ and the pixel (v, u) sees the wall if t(u) <= Z_plane(v), else the plane:
 The seen point is at height h - y_n t(u) on the wall, or at p + Z_plane(v) r(u) on the
 floor or ceiling, with r(u) = f + x_n g the column's ray in world coordinates
 (f = (cos yaw, sin yaw) forward, g = (sin yaw, -cos yaw) right). Its colour is
-``gain * shade * (c0 + (c1 - c0) p)`` with the pattern p of ``textures.pattern``.
+``gain * shade * (c0 + (c1 - c0) p)`` with the pattern p of ``textures.py``.
 
 Scenes are closed (walls all around), so every pixel has a finite depth. The camera is
 assumed outside every obstacle (the drone collides 0.5 m before touching one).
@@ -36,7 +36,7 @@ import numpy as np
 
 from .camera import Camera
 from .scene import Scene, SceneBatch
-from .textures import (CEILING_ID, D_AMP_B, D_AMP_N, D_C0, D_DC, D_INV_NS, D_INV_SU, D_INV_SV,
+from .textures import (CEILING_ID, D_C0, D_DC, D_INV_NS, D_INV_SU, D_INV_SV,
                        D_LB, D_LN, D_NOX, D_NOY, D_OX, D_OY, D_STAGGER, D_WB, D_WN, FLOOR_ID,
                        LIGHT, N_DERIVED, derived_table, pattern_from_coords, wall_shade)
 
@@ -46,7 +46,6 @@ ANGLE_SLACK = 1e-6    # radians of margin in the circle cull (keeps it conservat
 FEW_POSES = 4         # up to this many poses, cast every kept surface against every column
 
 assert D_LN == D_LB + 1 and D_WN == D_WB + 1 and D_DC.start == D_C0.stop   # sliced below
-assert (D_AMP_B, D_AMP_N) == (D_LB, D_LN)
 
 
 def _compact(keep: np.ndarray, rows: np.ndarray):
@@ -439,7 +438,7 @@ def _camera_constants(camera: Camera) -> dict:
 # Columns of the per-pixel tables (``_shade_pixels``), rows of 8 float32: 32 bytes is the
 # widest row that ``np.take`` copies without a memmove per row.
 # Table A: the four lattice coordinates c = 2 pattern + axis (pattern 0 blocks, 1 noise;
-# axis 0 along s, 1 along h; ``textures.texel_coords``) are c = x * scale + offset, x = s
+# axis 0 along s, 1 along h; ``textures.pattern_from_coords``) are c = x * scale + offset, x = s
 # or h; A holds the four scales, then the four offsets.
 _COORD_COLS = [D_INV_SU, D_INV_SV, D_INV_NS, D_INV_NS, D_OX, D_OY, D_NOX, D_NOY]
 # Table C: the shaded colours (c0 with + 1/2 for rounding, then c1 - c0), then the faded
@@ -529,7 +528,7 @@ def render_batch(scenes, poses, camera: Camera | None = None):
 
 
 def _faded_weights(q, footprint):
-    """``textures.fade`` for both patterns at once: (..., 2) = (a_b w_b, a_n w_n) with
+    """The faded weights of both patterns: (..., 2) = (a_b w_b, a_n w_n) with
     a = clip((L / f - 1) / 2, 0, 1), L the columns D_LB, D_LN of q (..., N_DERIVED), w its
     columns D_WB, D_WN and f the footprint (...)."""
     a = q[..., D_LB:D_LN + 1] * (0.5 / footprint)[..., None] - 0.5
@@ -672,10 +671,4 @@ def render(scene: Scene, pose, camera: Camera | None = None):
     return rgb[0], depth[0]
 
 
-def depth_to_ray_length(depth, camera: Camera) -> np.ndarray:
-    """Convert pinhole depth Z to the length of the ray, Z sqrt(1 + x_n^2 + y_n^2)."""
-    xn, yn = camera.column_rays(), camera.row_rays()
-    return np.asarray(depth) * np.sqrt(1.0 + xn[None, :] ** 2 + yn[:, None] ** 2)
-
-
-__all__ = ["render", "render_batch", "cast_columns", "depth_to_ray_length"]
+__all__ = ["render", "render_batch", "render_depth_batch", "cast_columns"]

@@ -79,10 +79,6 @@ class Scene:
         if self.space is None:
             self.space = build_space(self)
 
-    @property
-    def n_obstacles(self) -> int:
-        return len(self.circle_radii) + len(self.wall_app) + len(self.poly_app)
-
     def render_segments(self):
         """All straight surfaces: walls then polygon edges (degenerate edges dropped).
 
