@@ -46,8 +46,8 @@ class DepthEstimator:
     absolute nearness that obstacle avoidance needs.
 
     Inference runs on a snapshot of the network's weights, taken at the first
-    ``predict`` (the graph-free ``DispNetInference``); call ``refresh()`` if the network
-    is trained further while the estimator is kept.
+    ``predict`` (the graph-free ``DispNetInference``): build a new estimator after
+    training the network further.
 
     Args:
         dispnet: a trained DispNet.
@@ -97,15 +97,6 @@ class DepthEstimator:
         return cls(net, meta.get("scale", 1.0), meta, flip)
 
     # -- inference -------------------------------------------------------------------
-    # ``predict`` runs ``DispNetInference`` (nets/fast.py): a graph-free copy of the
-    # network's weights, plain NumPy, finest scale only, the same convolution routine as
-    # the autograd path; ~2.5x faster at batch 1 (the flight loop), ~2x on batches.
-    # Training, and anything that needs gradients, uses ``self.net`` (DispNet.forward).
-    def refresh(self) -> None:
-        """Re-read the network's weights on the next ``predict`` (after changing them:
-        ``predict`` works on a snapshot taken at its first call)."""
-        self._fast = None
-
     def _frames(self, rgb) -> tuple[np.ndarray, bool]:
         """rgb as checked uint8 (N, H, W, 3), and whether it was a single (H, W, 3)."""
         rgb = np.asarray(rgb)
@@ -124,10 +115,10 @@ class DepthEstimator:
     def predict_disp(self, rgb) -> np.ndarray:
         """rgb uint8 (N, H, W, 3) or (H, W, 3) -> network disparity (N, H, W) float32.
 
-        Equal (to float32 round-off) to ``predict_disp_autograd``, the autograd forward
-        ``net(rgb as (N, 3, H, W) float32 / 255, scales=1)[0]``; computed by the
-        graph-free ``DispNetInference``. With ``flip``: the mean of that and its value on
-        the mirrored frames, mirrored back.
+        Equal (to float32 round-off) to the autograd forward ``net(rgb as (N, 3, H, W)
+        float32 / 255, scales=1)[0]``; computed by the graph-free ``DispNetInference``.
+        With ``flip``: the mean of that and its value on the mirrored frames, mirrored
+        back.
         """
         rgb, single = self._frames(rgb)
         if self._fast is None:
@@ -136,17 +127,6 @@ class DepthEstimator:
         if self.flip:
             mirrored = self._fast(np.ascontiguousarray(rgb[:, :, ::-1]))
             out = 0.5 * (out + mirrored[:, :, ::-1].astype(np.float32, copy=False))
-        return out[0] if single else out
-
-    def predict_disp_autograd(self, rgb, batch_size: int = 64) -> np.ndarray:
-        """``predict_disp`` through the autograd forward (``DispNet.forward`` under
-        ``no_grad``): the reference for tests and benchmarks."""
-        rgb, single = self._frames(rgb)
-        out = np.empty(rgb.shape[:3], dtype=np.float32)
-        with ag.no_grad():
-            for k in range(0, len(rgb), batch_size):
-                x = rgb[k:k + batch_size].transpose(0, 3, 1, 2).astype(np.float32) * (1 / 255.0)
-                out[k:k + batch_size] = self.net(x, scales=1)[0].data[:, 0]
         return out[0] if single else out
 
     def predict(self, rgb) -> np.ndarray:
