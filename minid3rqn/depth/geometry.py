@@ -121,7 +121,7 @@ def check_intrinsics(K, height: int, width: int, name: str = "K") -> np.ndarray:
             f"{name} does not match the image size {height}x{width}: its principal point is "
             f"(cx, cy) = ({K[0, 2]:g}, {K[1, 2]:g}) but an image of that size has its middle "
             f"column at cx = {cx:g} and its rows in [0, {height - 1}]. Scale K with the image "
-            f"(see Camera.scaled / scale_intrinsics).")
+            f"(see scale_intrinsics).")
     return K
 
 
