@@ -5,8 +5,8 @@ PyTorch's functional API where it has an equivalent (``ag.conv2d(x, weight, bias
 stride, padding)``, ``ag.grid_sample``-style ``ag.bilinear_sample``, ...).
 """
 from .engine import (Tensor, no_grad, is_grad_enabled, as_tensor, unbroadcast, add, sub,
-                     mul, div, neg, pow, exp, log, relu, astype, matmul, sum, mean, max,
-                     reshape, transpose, getitem)
+                     mul, div, neg, pow, exp, log, relu, matmul, sum, mean, reshape,
+                     transpose, getitem)
 from .elementwise import sqrt, abs, elu, sigmoid, tanh, clip, where, maximum, minimum
 from .reduce import log_softmax
 from .shape import concat, stack, pad, crop, flatten

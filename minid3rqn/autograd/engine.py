@@ -22,7 +22,6 @@ lstm.py and sample.py.
 """
 from __future__ import annotations
 
-import builtins
 import contextlib
 from typing import Callable, Iterable, Sequence
 
@@ -139,9 +138,6 @@ class Tensor:
     def item(self) -> float:
         return self.data.item()
 
-    def astype(self, dtype) -> "Tensor":
-        return astype(self, dtype)
-
     def zero_grad(self) -> None:
         self.grad = None
 
@@ -246,9 +242,6 @@ class Tensor:
 
     def mean(self, axis=None, keepdims=False):
         return mean(self, axis, keepdims)
-
-    def max(self, axis=None, keepdims=False):
-        return max(self, axis, keepdims)
 
     def reshape(self, *shape):
         if len(shape) == 1 and isinstance(shape[0], (tuple, list)):
@@ -397,7 +390,7 @@ def pow(x, exponent) -> Tensor:
     return Tensor.from_op(y, (x,), lambda g: (g * p * x.data ** (p - 1),), "pow")
 
 
-# -- exp, log, relu, and a change of dtype ---------------------------------------------
+# -- exp, log, relu ---------------------------------------------------------------------
 def exp(x) -> Tensor:
     """y = e^x;  dy/dx = e^x = y."""
     x = as_tensor(x)
@@ -416,13 +409,6 @@ def relu(x) -> Tensor:
     x = as_tensor(x)
     mask = x.data > 0
     return Tensor.from_op(x.data * mask, (x,), lambda g: (g * mask,), "relu")
-
-
-def astype(x, dtype) -> Tensor:
-    """y = x in another float dtype;  dy/dx = 1 (the gradient converts back)."""
-    x = as_tensor(x)
-    old = x.dtype
-    return Tensor.from_op(x.data.astype(dtype), (x,), lambda g: (g.astype(old),), "astype")
 
 
 # -- matrix product: @ -----------------------------------------------------------------
@@ -472,7 +458,7 @@ def _pair_matmul(a, b) -> tuple[Tensor, Tensor]:
     return a, b
 
 
-# -- reductions: sum, mean, max --------------------------------------------------------
+# -- reductions: sum, mean -----------------------------------------------------------
 # A reduction removes axes; its gradient puts them back (``keepdims`` shape) and
 # broadcasts ``g`` over them, because every reduced entry influenced the result.
 def reduction_axes(axis, ndim: int, op: str) -> tuple[int, ...]:
@@ -483,10 +469,10 @@ def reduction_axes(axis, ndim: int, op: str) -> tuple[int, ...]:
     axes = (axis,) if isinstance(axis, (int, np.integer)) else tuple(axis)
     out = []
     for a in axes:
-        if not -ndim <= a < builtins.max(ndim, 1):
+        if not -ndim <= a < max(ndim, 1):
             raise ValueError(f"{op}: axis {a} is out of range for a tensor with "
                              f"{ndim} dimensions")
-        out.append(a % builtins.max(ndim, 1))
+        out.append(a % max(ndim, 1))
     return tuple(sorted(set(out)))
 
 
@@ -516,24 +502,6 @@ def mean(x, axis=None, keepdims: bool = False) -> Tensor:
                                                      x.shape).astype(x.dtype),), "mean")
 
 
-def max(x, axis=None, keepdims: bool = False) -> Tensor:
-    """y = max_i x_i over ``axis``;  dy/dx_i = 1 at the maximum, else 0.
-
-    On ties the gradient is shared equally among the tied entries (a subgradient).
-    """
-    x = as_tensor(x)
-    axes = reduction_axes(axis, x.ndim, "max")
-    y_keep = np.max(x.data, axis=axes, keepdims=True)
-    y = y_keep if keepdims else np.squeeze(y_keep, axis=axes)
-
-    def vjp(g):
-        hit = x.data == y_keep
-        share = hit / np.sum(hit, axis=axes, keepdims=True)
-        return (_regrow(g, axes, keepdims) * share.astype(x.dtype),)
-
-    return Tensor.from_op(np.asarray(y), (x,), vjp, "max")
-
-
 # -- moving entries: reshape, transpose, indexing --------------------------------------
 # Their gradients move ``g`` back the same way.
 def reshape(x, shape) -> Tensor:
@@ -554,7 +522,7 @@ def transpose(x, axes=None) -> Tensor:
     if axes is None:
         axes = tuple(reversed(range(x.ndim)))
     axes = tuple(int(a) for a in axes)
-    if sorted(a % builtins.max(x.ndim, 1) for a in axes) != list(range(x.ndim)):
+    if sorted(a % max(x.ndim, 1) for a in axes) != list(range(x.ndim)):
         raise ValueError(f"transpose: axes {axes} are not a permutation of "
                          f"0..{x.ndim - 1} for shape {x.shape}")
     inverse = tuple(np.argsort(axes))

@@ -5,21 +5,15 @@ Gymnasium conventions without the dependency:
     obs, info = env.reset(seed=None, options=None)
     obs, reward, terminated, truncated, info = env.step(action)
 
-One step is ``stepper.step_drones``, the step of every flight in the package (the
-Q-learning flights, ``rl.flights.Flights``, take it too). The action index picks a row
-(v, omega) of the action table; the drone flies the exact arc for ``dt`` seconds,
-checked for collision every 0.1 m of arc, and ends at the arc's end:
+One step is ``stepper.step_drones`` (the arc flown, the collision check, the reward:
+see there), the step of every flight in the package; then
 
-    collided = (clearance < safe_distance somewhere on the arc),
-    reward = reward_fn(d_nearest at the arc's end, collided[, yaw_rate])   (paper: d or -1)
     terminated = collided,    truncated = (steps == max_steps) and not collided.
-
-A collision ends the episode where the arc ends, which may be past the obstacle hit.
 
 Observation: the RGB frame (H, W, 3) uint8 from the new pose. ``info`` holds "pose"
 (x, y, yaw), "depth" (H, W) float32 ground truth, "d_nearest", "collided", "step" and
 "scene_seed" (``VecDroneEnv``: one row per flight). A flight that has ended stays put
-until the next ``reset``.
+(``step`` skips it: reward 0, flags as they ended) until the next ``reset``.
 
 Worlds. Every ``reset`` generates a fresh world from the flight's generator unless
 ``options`` say otherwise:
@@ -28,9 +22,7 @@ Worlds. Every ``reset`` generates a fresh world from the flight's generator unle
 ``reset(seed=s)`` re-seeds the generators first, so a seed fixes worlds and starts.
 
 Changing the actions or the reward is one constructor argument:
-    DroneEnv(actions=[[2.0, 0.0], [2.0, 0.3], [2.0, -0.3]], reward_fn=my_reward)
-where ``my_reward(d_nearest, collided)``, or ``my_reward(d_nearest, collided, yaw_rate)``
-(the yaw rate of the action flown), is called with arrays, one entry per flight.
+    DroneEnv(actions=[[2.0, 0.0], [2.0, 0.3], [2.0, -0.3]], reward_fn=my_reward).
 """
 from __future__ import annotations
 
@@ -129,11 +121,8 @@ class VecDroneEnv:
         first_index: index of flight 0 in the seed stream (for splitting a large
             evaluation into chunks that reproduce one big run).
 
-    ``reset``/``step`` return batched arrays: obs (N, H, W, 3) uint8, reward (N,),
-    terminated (N,), truncated (N,) and info with "pose" (N, 3), "depth" (N, H, W),
-    "d_nearest" (N,), "collided" (N,), "step" (N,), "scene_seed" (N,). An ended flight
-    is skipped by ``step`` (reward 0, flags as they ended) and ``active`` turns False;
-    ``reset`` starts all flights again.
+    ``reset``/``step`` return batched arrays (module docstring); ``active`` (N,) marks
+    the flights not yet ended.
     """
 
     def __init__(self, n_envs: int, scenario: str = "basic", seed=0,
