@@ -29,7 +29,12 @@ import numpy as np
 
 from ..config import as_dict, at_least, between, command_line, setting, validate
 from ..io import load_npz, save_npz
-from ..world.scenarios import SCENARIOS
+from ..world.camera import Camera
+from ..world.distance import nearest_distance, sample_start_pose
+from ..world.kinematics import integrate_arc
+from ..world.renderer import render_batch
+from ..world.scenarios import SCENARIOS, make_scene
+from .geometry import check_intrinsics
 
 SPEED = 2.0          # m/s, the paper's forward speed
 FRAME_DT = 0.4       # s between frames (paper, Table 2)
@@ -67,7 +72,6 @@ def held_out(cfg: CollectConfig, frames: int = TEST_FRAMES) -> CollectConfig:
 # -- the scripted pilot ----------------------------------------------------------------
 def _arc_points(pose, yaw_rate, horizon: float, n: int) -> np.ndarray:
     """Positions (n, 2) along an arc flown from ``pose`` at SPEED for ``horizon`` s."""
-    from ..world.kinematics import integrate_arc
     taus = np.linspace(horizon / n, horizon, n)
     return integrate_arc(np.asarray(pose)[None], SPEED, yaw_rate, taus)[:, :2]
 
@@ -101,7 +105,6 @@ class ScriptedPilot:
         self.segment = (margin, horizon)          # (margin, horizon) of this segment
 
     def __call__(self, pose) -> float:
-        from ..world.distance import nearest_distance
         if self.hold <= 0:
             self.preferred = float(self.rng.choice([-0.5, -0.25, 0.0, 0.0, 0.25, 0.5]))
             self.hold = int(self.rng.integers(2, 8))
@@ -123,20 +126,11 @@ class ScriptedPilot:
 
 
 # -- collection ------------------------------------------------------------------------
-def _render(scene, poses, camera):
-    """(F, 3) poses -> rgb (F, H, W, 3) uint8, depth (F, H, W) float32 via the world."""
-    from ..world import render_batch
-    rgb, depth = render_batch(scene, np.asarray(poses), camera)
-    return np.asarray(rgb, dtype=np.uint8), np.asarray(depth, dtype=np.float32)
-
-
 def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0,
         frame_dt: float = FRAME_DT) -> np.ndarray:
     """One scripted flight of up to ``n_frames`` camera poses (fewer if it comes too
     close); ``late``: the pilot's share of late-turn segments (``ScriptedPilot``);
     ``frame_dt``: seconds between frames (the pilot decides at every frame)."""
-    from ..world.distance import nearest_distance, sample_start_pose
-    from ..world.kinematics import integrate_arc
     pilot = ScriptedPilot(scene, rng, late=late)
     poses = [sample_start_pose(scene, rng)]
     while len(poses) < n_frames:
@@ -164,8 +158,6 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
     """
     if not 0.0 < frame_dt <= 2.0:
         raise ValueError(f"collect: frame_dt must be in (0, 2] s; got {frame_dt}")
-    from ..world.camera import Camera
-    from ..world.scenarios import make_scene
     if n_frames < 3:
         raise ValueError(f"collect: n_frames must be >= 3 (one triplet); got {n_frames}")
     if frames_per_flight < 3:
@@ -184,7 +176,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         f += 1
         if len(poses) < 3:
             continue
-        im, dp = _render(scene, poses, camera)
+        im, dp = render_batch(scene, poses, camera)
         rgb.append(im), depth.append(dp), pose.append(poses)
         flight.append(np.full(len(poses), len(flight), dtype=np.int32))
         total += len(poses)
@@ -234,7 +226,6 @@ class Sequence:
         if self.flight.shape != (n,):
             raise ValueError(f"Sequence: flight must be ({n},), one id per frame; got "
                              f"{self.flight.shape}")
-        from .geometry import check_intrinsics
         self.K = check_intrinsics(self.K, self.rgb.shape[1], self.rgb.shape[2], "Sequence: K")
         for name in ("depth", "pose"):
             value = getattr(self, name)
