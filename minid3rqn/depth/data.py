@@ -87,10 +87,9 @@ class ScriptedPilot:
 
     ``late``: the share of those few-step segments flown as a *late turner*: straight
     ahead, looking only ``late_horizon`` s (a random 1.0-1.6 s, 2-3 m) ahead with a
-    ``late_margin`` of 0.7 m, so it swerves only when an obstacle is close. A careful
-    pilot (``late`` = 0) turns away 5 m early, and its frames almost never show an
-    obstacle 1-2 m straight ahead, the view a Q-net must judge before a crash
-    (docs/depth.md, "Where the near pixels are").
+    ``late_margin`` of 0.7 m, so it swerves only when an obstacle is close; the careful
+    pilot (``late`` = 0) rarely films an obstacle 1-2 m straight ahead (docs/depth.md,
+    "Where the near pixels are").
     """
 
     def __init__(self, scene, rng: np.random.Generator, margin: float = 1.0,
@@ -152,9 +151,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
     than 3 frames (no triplet) are dropped, so when the last 1-2 frames cannot make a
     flight of their own the sequence ends up to 2 frames short of ``n_frames``. Returns
     the arrays of a sequence file. ``late``: the pilot's share of late-turn segments
-    (``ScriptedPilot``; 0, the default, is the careful pilot). ``frame_dt``: seconds
-    between frames (paper: 0.4 s; a camera films faster than the pilot decides, and
-    a shorter step means smaller image motion for view synthesis).
+    (``ScriptedPilot``). ``frame_dt``: seconds between frames (paper: 0.4 s).
     """
     if not 0.0 < frame_dt <= 2.0:
         raise ValueError(f"collect: frame_dt must be in (0, 2] s; got {frame_dt}")

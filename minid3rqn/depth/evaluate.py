@@ -36,29 +36,23 @@ METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
 class DepthEstimator:
     """Monocular depth for the RL agent: RGB frames in, depth maps (metres) out.
 
-    Scale convention: monocular depth is known only up to a global scale. This
-    estimator fixes it once, at training time, from the drone's known forward speed
-    (0.8 m between frames, see ``train.speed_scale``), so ``predict`` returns depth in
-    approximately metres: depth = scale / disp. The scale is a constant of the model
-    file, the same for every frame, so depth maps from one model are comparable across
-    frames and episodes. Consumers that want a unit-free input can divide by a fixed
-    constant (e.g. 10 m); do not normalise per frame, which would throw away the
-    absolute nearness that obstacle avoidance needs.
+    Scale: monocular depth is known only up to a global scale. This estimator fixes it
+    once, at training time, from the drone's known forward speed (0.8 m between frames,
+    ``train.speed_scale``), so ``predict`` returns depth = scale / disp in about metres,
+    the same scale for every frame (not normalised per frame, which would throw away
+    the absolute nearness that obstacle avoidance needs).
 
     Inference runs on a snapshot of the network's weights, taken at the first
-    ``predict`` (the graph-free ``DispNetInference``): build a new estimator after
-    training the network further.
+    ``predict`` (``DispNetInference``): build a new estimator after training further.
 
     Args:
         dispnet: a trained DispNet.
         scale: metres per unit of 1 / disp.
         meta: free-form metadata (command, seed, results) from the model file.
-        flip: test-time flip averaging (monodepth's post-processing, in its plain form):
-            the disparity is the mean of the network's disparity for the frame and,
-            flipped back, for the frame mirrored left-right. A left-right mirror of a
-            world is as likely as the world, so the network's errors on the two views
-            are partly independent and the mean is closer to the truth. Twice the
-            inference cost; off by default, and not used in training.
+        flip: test-time flip averaging (monodepth's post-processing): the disparity is
+            the mean of the network's disparity for the frame and, flipped back, for the
+            frame mirrored left-right (a mirrored world is as likely as the world, so
+            the errors on the two views are partly independent). Twice the cost.
     """
 
     def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None,
@@ -208,9 +202,7 @@ def log_error_parts(depth, estimate, clip=Q_NET_RANGE) -> dict:
     a the frame's mean, b the column means of e - a, c the row means of e - a - b, and
     r the rest. Returns the std of e and of each part (pixels weighted alike), and the
     mean of e. Both depths are clipped to ``clip`` first (0.5 to 10 m, the range a
-    Q-net reads). Used for the DispNet's error in flight
-    (examples/07_which_depth_errors_matter.py) and for a student's corruption
-    (classroom exercise 8)."""
+    Q-net reads)."""
     lo, hi = clip
     e = np.log(np.clip(np.asarray(estimate, np.float64), lo, hi) /
                np.clip(np.asarray(depth, np.float64), lo, hi))

@@ -17,9 +17,6 @@ they can; tests/test_fast_inference.py keeps them equal to ``forward``.
                            current weights on every call
     DispNetInference       ``DispNet.forward(x, scales=1)[0]`` on a snapshot of the weights,
                            channels-last, into preallocated buffers
-
-Training always goes through the networks' ``forward``; these only *evaluate* a network
-faster.
 """
 from __future__ import annotations
 
@@ -173,12 +170,11 @@ def upsample_conv_phases(weight: np.ndarray) -> dict:
 def bias_elu_(y: np.ndarray, bias, scratch: np.ndarray, zeros: np.ndarray) -> np.ndarray:
     """In place: ``y <- ELU(y + bias)`` (alpha = 1), as ``max(x, 0) + (exp(min(x, 0)) - 1)``.
 
-    ``ag.elu`` (training) computes ``where(x > 0, x, expm1(min(x, 0)))``. Here ``expm1``
-    is replaced by ``exp(.) - 1``: NumPy vectorizes ``exp`` on any x86-64 CPU, ``expm1``
-    only with AVX-512, and without it the ELU cost more than all the convolutions
-    (``python benchmarks/bench_dispnet_chunk.py --elu``). For x > 0 the result is x to
-    the bit; for x <= 0, ``exp(x) - 1`` is exact when exp(x) >= 1/2 (Sterbenz), so the
-    error is ``exp``'s rounding, at most about 1.2e-7 absolute in float32.
+    ``ag.elu`` (training) computes ``where(x > 0, x, expm1(min(x, 0)))``; NumPy
+    vectorizes ``exp`` on any x86-64 CPU but ``expm1`` only with AVX-512
+    (``benchmarks/bench_dispnet_chunk.py --elu``). For x > 0 the result is x to the bit;
+    for x <= 0, ``exp(x) - 1`` is exact when exp(x) >= 1/2 (Sterbenz), so the error is
+    ``exp``'s rounding, at most about 1.2e-7 absolute in float32.
 
     No ``np.where`` and no allocation: ``scratch`` and ``zeros`` are arrays of ``y``'s
     shape and dtype (``zeros`` all zeros: NumPy's SIMD min/max loops want two
@@ -199,8 +195,7 @@ def qnet_step(net: QNet, obs, state=None):
     """``net.step(obs, state)``: one time step, obs (B, C, H, W) -> (Q (B, n_actions),
     new state), for acting (the policies, the agent's epsilon-greedy steps).
 
-    Under ``no_grad`` this runs ``_qnet_step_arrays``, the same computation without
-    building a graph; with gradients on, ``net.step`` (that is, ``forward``).
+    Under ``no_grad`` this runs ``_qnet_step_arrays``; with gradients on, ``net.step``.
     """
     obs = obs.data if isinstance(obs, Tensor) else np.asarray(obs)
     if not ag.is_grad_enabled() and _arrays_ok(net, obs, state):
@@ -225,11 +220,8 @@ def _arrays_ok(net: QNet, obs: np.ndarray, state) -> bool:
 def _qnet_step_arrays(net: QNet, obs: np.ndarray, state):
     """``net.step`` on plain arrays: the operations of ``QNet.forward`` (T = 1), in the
     same order and with the same routines (``conv2d_nhwc`` through ``ConvInference``,
-    the LSTM's ``_gates``), so Q and the state come out the same, to the bit, but
-    without Tensor wrappers, argument checks and backward closures, which at batch 1
-    cost more than the arithmetic (the whole framework runs this once per frame).
-    Reads the current weights on every call: nothing is cached, so it is safe
-    while the network trains."""
+    the LSTM's ``_gates``), so Q and the state come out the same, to the bit. Reads the
+    current weights on every call, so it is safe while the network trains."""
     B = obs.shape[0]
     x = np.ascontiguousarray(obs.transpose(0, 2, 3, 1))        # channels-last
     for conv in net.convs:
@@ -294,17 +286,15 @@ class DispNetInference:
       head by contracting channels first (``ConvInference``).
 
     The last two sum the same products in another order, and the ELU rounds its
-    negative side differently (by at most about 1.2e-7 in float32), so the output
-    equals ``forward`` to float round-off (about 1e-6 relative in float32), not to the
-    bit; everything else is the same arithmetic in the same order.
+    negative side differently, so the output equals ``forward`` to float round-off
+    (about 1e-6 relative in float32), not to the bit.
 
     Large batches run ``chunk`` frames at a time, so that the working set (about 1 MB
-    of buffers per frame at 32x104) stays in the CPU caches
-    (``benchmarks/bench_dispnet_chunk.py``); the chunk changes the last bit of some
-    outputs (the GEMMs' row counts change), so the default stays 8.
+    of buffers per frame at 32x104) stays in the CPU caches; the chunk changes the last
+    bit of some outputs (the GEMMs' row counts change), so the default stays 8.
 
-    A snapshot: weights changed after construction are not seen; build a new one. Not
-    thread-safe (the buffers are shared): one instance per thread.
+    A snapshot: weights changed after construction are not seen. Not thread-safe (the
+    buffers are shared): one instance per thread.
     """
 
     def __init__(self, net: DispNet, chunk: int = 8):

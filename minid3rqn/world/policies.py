@@ -55,10 +55,8 @@ def random_policy(rng: np.random.Generator):
 
 class Oracle:
     """The look-ahead planner (module docstring). Call it as a policy: ``oracle(env)``.
-
-    It remembers each flight's chosen plan: the rest of it (its last action held one
-    step longer) competes with the fixed candidates at the next step, so a plan found
-    safe stays available (receding horizon). Memory is cleared where ``env.steps`` is 0.
+    Each flight's remembered plan (its rest, the last action held one step longer) is
+    cleared where ``env.steps`` is 0.
 
     Args:
         segments: steps each action of a plan is held (the first is the action taken).

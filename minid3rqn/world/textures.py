@@ -78,9 +78,7 @@ def random_appearance(rng: np.random.Generator, hue_range=(0.0, 1.0), sat=(0.35,
     fine grain (value noise of 8-16 cm cells).
 
     Two scales, like real surfaces: the blocks give texture from afar, the grain up close
-    (a 40 cm block seen from 1.5 m covers a dozen pixels of flat colour, where
-    view synthesis has nothing to match); the anti-aliasing fade removes the grain beyond
-    a few metres, where it would be smaller than a pixel."""
+    (where a block covers pixels of flat colour that view synthesis cannot match)."""
     h = rng.uniform(*hue_range) % 1.0
     s, v = rng.uniform(*sat), rng.uniform(*val)
     c0 = hsv_to_rgb(h, s, v)

@@ -1,7 +1,4 @@
-"""A top-down map of a world with the drone, its trajectory and its field of view (Pillow).
-
-The generic picture helpers (depth colour map, GIF writing) are in ``minid3rqn.viz``.
-"""
+"""A top-down map of a world with the drone, its trajectory and its field of view (Pillow)."""
 from __future__ import annotations
 
 import numpy as np
