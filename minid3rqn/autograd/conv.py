@@ -449,6 +449,3 @@ def _lerp_up_adjoint(g: np.ndarray, s: int, axis: int) -> np.ndarray:
     dx[_along(axis, slice(0, 1))] += edge[_along(axis, slice(0, 1))]
     dx[_along(axis, slice(L - 1, L))] += edge[_along(axis, slice(L + 1, L + 2))]
     return dx
-
-
-__all__ = ["conv2d", "upsample"]

@@ -88,7 +88,3 @@ def minimum(a, b) -> Tensor:
     """y = min(a, b);  the gradient goes to the smaller (to a on ties)."""
     a, b = broadcast_pair(a, b, "minimum")
     return where(a.data <= b.data, a, b)
-
-
-__all__ = ["sqrt", "abs", "elu", "sigmoid", "tanh", "clip", "where",
-           "maximum", "minimum"]

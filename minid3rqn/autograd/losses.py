@@ -45,6 +45,3 @@ def huber_loss(prediction, target, delta: float = 1.0, reduction: str = "mean") 
     r = abs(_residual(prediction, target, "huber_loss", reduction))
     q = clip(r, 0.0, delta)
     return _reduce(mul(q, sub(r, mul(q, 0.5))), reduction)
-
-
-__all__ = ["mse_loss", "huber_loss"]

@@ -192,6 +192,3 @@ def lstm(x, h0, c0, weight_ih, weight_hh, bias=None) -> tuple[Tensor, tuple[Tens
     h_part, c_part = slice(0, hidden), slice(hidden, 2 * hidden)
     return crop(out, (Ellipsis, h_part)), (crop(out, (steps - 1, Ellipsis, h_part)),
                                            crop(out, (steps - 1, Ellipsis, c_part)))
-
-
-__all__ = ["lstm"]

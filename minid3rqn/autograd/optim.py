@@ -90,6 +90,3 @@ def clip_grad_norm(params: Iterable[Tensor], max_norm: float) -> float:
         for g in grads:
             g *= scale
     return total
-
-
-__all__ = ["Adam", "clip_grad_norm"]

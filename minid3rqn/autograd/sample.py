@@ -141,6 +141,3 @@ def _check_inputs(image, coords, padding_mode: str) -> tuple[Tensor, Tensor]:
         raise ValueError(f"{op}: image must have H, W >= 1; got shape {image.shape}")
     check_same_dtype((image, coords), op)
     return image, coords
-
-
-__all__ = ["bilinear_sample"]

@@ -110,6 +110,3 @@ def flatten(x, start_dim: int = 1) -> Tensor:
     """y = x with the axes from ``start_dim`` on merged into one."""
     x = as_tensor(x)
     return reshape(x, x.shape[:start_dim] + (-1,))
-
-
-__all__ = ["concat", "stack", "pad", "crop", "flatten"]

@@ -301,8 +301,3 @@ def load_sequence(path) -> Sequence:
                            f"`python -m minid3rqn collect`")
     return Sequence(arrays["rgb"], arrays["flight"], arrays["K"], arrays.get("depth"),
                     arrays.get("pose"), meta)
-
-
-__all__ = ["SPEED", "FRAME_DT", "TEST_SEED_OFFSET", "CollectConfig", "held_out",
-           "ScriptedPilot", "fly", "collect", "collect_sequence", "save_sequence",
-           "Sequence", "triplet_indices", "load_sequence"]

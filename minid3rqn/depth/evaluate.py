@@ -323,8 +323,3 @@ class LearningCurve:
                    "held-out delta<1.25": (its, [rw["a1"] for rw in self.rows])},
                   self.png, title="train-depth: held-out depth quality (200 frames)",
                   xlabel="iteration", ylim=(0.0, 1.0))
-
-
-__all__ = ["METRICS", "DepthEstimator", "align_to_gt", "depth_metrics", "errors_by_depth",
-           "log_error_parts", "pose_errors", "evaluate", "comparison_picture",
-           "LearningCurve"]

@@ -195,8 +195,3 @@ def inverse_warp(src, depth, T_tgt_to_src, K, padding: str = "zeros"):
     if padding == "zeros":
         warped = warped * valid
     return warped, valid
-
-
-__all__ = ["Z_EPS", "sin", "cos", "euler_to_matrix", "pose_vec_to_mat",
-           "matrix_to_pose_vec", "check_intrinsics", "scale_intrinsics", "pixel_rays",
-           "inverse_warp"]

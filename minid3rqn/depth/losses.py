@@ -287,7 +287,3 @@ def _mean(terms: list) -> Tensor:
     for term in terms[1:]:
         total = total + term
     return total * (1.0 / len(terms))
-
-__all__ = ["l1_error", "reconstruction_errors", "LossConfig", "box3", "ssim_dissimilarity",
-           "photometric_error", "configured_error", "masked_minimum", "downsample_image",
-           "smoothness_loss", "at_scale", "speed_loss", "view_synthesis_loss"]

@@ -117,6 +117,3 @@ class DispNet(Module):
             if i < n_out:
                 disps[i] = ag.sigmoid(self.heads[i](x)) * self.disp_scale + self.min_disp
         return disps[:n_out]
-
-
-__all__ = ["DispNet"]

@@ -461,7 +461,3 @@ def _with_bias_elu(run, bias, y, scratch, zeros):
 def _like(buf: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The first y.size elements of the flat ``buf``, shaped like ``y``."""
     return buf[:y.size].reshape(y.shape)
-
-
-__all__ = ["ConvInference", "upsample_conv_phases", "bias_elu_", "qnet_step",
-           "DispNetInference"]

@@ -70,6 +70,3 @@ class PoseNet(Module):
         x = ag.mean(self.head(x), axis=(2, 3))                        # (N, 6 S)
         scale = np.full(6, self.pose_scale, dtype=x.dtype)
         return ag.reshape(x, (x.shape[0], self.n_sources, 6)) * scale
-
-
-__all__ = ["PoseNet"]

@@ -106,6 +106,3 @@ def run(args) -> int:
         raise UsageError(f"--n-flights: expected a number >= 1; got {args.n_flights}")
     calibrate(args.scenarios, args.n_flights, args.seed, verbose=True)
     return 0
-
-
-__all__ = ["POLICIES", "fly", "calibrate", "add_arguments", "run", "make_policy"]

@@ -138,6 +138,3 @@ class Camera:
         xn.setflags(write=False)
         yn.setflags(write=False)
         return xn, yn
-
-
-__all__ = ["Camera"]

@@ -253,8 +253,3 @@ def sample_start_pose(scene: Scene, rng: np.random.Generator, actions=ACTIONS,
                     return np.array([xy[k, 0], xy[k, 1], yaw[k]])
     raise RuntimeError(f"sample_start_pose: no free start pose found in scene {scene.name!r} "
                        f"(seed {scene.seed}) after {max_rounds * 64} candidates")
-
-
-__all__ = ["nearest_distance", "nearest_distance_batch", "nearest_distance_by_kind", "KINDS",
-           "pymunk_nearest_distance",
-           "ClearanceField", "clearance_field", "sample_fields", "sample_start_pose"]

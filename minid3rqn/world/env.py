@@ -283,6 +283,3 @@ class DroneEnv(VecDroneEnv):
         obs, reward, term, trunc, info = super().step(np.array([action], np.int64))
         obs, info = self._one(obs, info)
         return obs, float(reward[0]), bool(term[0]), bool(trunc[0]), info
-
-
-__all__ = ["Discrete", "VecDroneEnv", "DroneEnv"]

@@ -152,8 +152,3 @@ def paper_reward(d_nearest, collided):
     c = np.asarray(collided, dtype=bool)
     r = np.where(c, -1.0, d)
     return float(r) if r.ndim == 0 else r
-
-
-__all__ = ["ACTIONS", "ACTION_INTERVAL", "SAFE_DISTANCE", "MAX_SUBSTEP", "check_action_table",
-           "integrate_arc", "n_substeps", "substep_poses", "plan_paths", "fly_plans",
-           "loiter_actions", "loiter_circles", "paper_reward"]

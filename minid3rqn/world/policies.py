@@ -193,6 +193,3 @@ class Oracle:
 
 
 oracle_policy = Oracle()
-
-
-__all__ = ["straight_policy", "random_policy", "Oracle", "oracle_policy"]

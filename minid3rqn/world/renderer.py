@@ -608,6 +608,3 @@ def render(scene: Scene, pose, camera: Camera | None = None):
                          f"{pose.shape}")
     rgb, depth = render_batch(scene, pose[None], camera)
     return rgb[0], depth[0]
-
-
-__all__ = ["render", "render_batch", "render_depth_batch", "cast_columns"]

@@ -409,5 +409,3 @@ def _intersections(rng, seed, n_blocks, block_size, street, altitude, ceiling,
 
 _GENERATORS = {"basic": _basic, "channel": _channel, "intersections": _intersections,
                "corners": _corners}
-
-__all__ = ["SCENARIOS", "DEFAULTS", "make_scene"]

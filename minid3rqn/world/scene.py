@@ -341,6 +341,3 @@ class SceneBatch:
             for k, s in enumerate(self.scenes):
                 self._write(k, s)
         self._write(n, scene)
-
-
-__all__ = ["FAR", "Scene", "SceneBuilder", "SceneBatch", "point_in_polygon", "build_space"]

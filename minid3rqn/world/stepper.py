@@ -94,7 +94,3 @@ def step_drones(poses, actions, chosen, scenes: SceneBatch, dt: float = ACTION_I
         raise ValueError(f"step_drones: reward_fn must return a number or an array of shape "
                          f"{d.shape} (one reward per flight); got shape {np.shape(r)}") from None
     return Moved(arcs[:, -1], d, collided, rewards)
-
-
-__all__ = ["step_drones", "Moved", "action_arcs", "call_reward", "accepts_yaw_rate",
-           "check_reward_fn"]

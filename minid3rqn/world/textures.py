@@ -212,8 +212,3 @@ def wall_shade(n_dot_l) -> np.ndarray:
     """Half-Lambert shade of vertical surfaces, 0.6 + 0.4 (1 + n . l) / 2, from the cosine
     n . l between the unit surface normal and the light direction ``LIGHT``."""
     return 0.6 + 0.2 * (1.0 + np.asarray(n_dot_l))
-
-
-__all__ = ["N_PARAMS", "N_DERIVED", "FLOOR_ID", "CEILING_ID", "LATTICE", "NOISE", "LIGHT",
-           "make_appearance", "random_appearance", "hsv_to_rgb", "derived_table",
-           "pattern_from_coords", "wall_shade"]

@@ -69,6 +69,3 @@ def topdown(scene: Scene, trajectory=None, pose=None, camera: Camera | None = No
         draw.line(px([(x, y), (x + 0.9 * np.cos(yaw), y + 0.9 * np.sin(yaw))]),
                   fill=(255, 60, 60), width=2)
     return img
-
-
-__all__ = ["topdown"]
