@@ -25,17 +25,11 @@ flipped kernel, i.e. one more im2col + GEMM. With stride s the input splits into
 interleaved phases, each a stride-1 correlation with the kernel taps ``w[..., a::s,
 b::s]`` (the "sub-pixel" decomposition).
 
-Speed (benchmarks/bench_autograd.py):
-
-- cols is KH*KW times the size of the image, so it is never stored whole: it is built
-  and consumed in blocks of about ``_BLOCK_BYTES`` that stay in the CPU cache, and the
-  backward pass rebuilds it from the padded input rather than keeping it.
-- im2col reads the input channels-last (NHWC), so that a window row is a run of KW*C
-  contiguous floats; with few channels (KW*C < ``_SHORT_RUN``) the copy runs
-  tap-major instead (runs of OW pixels).
-- Outputs and gradients are NCHW-*shaped* views of channels-last memory
-  (``y.transpose(0, 3, 1, 2)`` of an (N, OH, OW, O) array): elementwise ops keep the
-  layout, and the next convolution reads them without a transposing copy.
+Speed (benchmarks/bench_autograd.py): cols is KH*KW times the size of the image, so it
+is built and consumed in cache-sized blocks (``_BLOCK_BYTES``) and rebuilt by the
+backward pass, never stored whole; im2col reads the input channels-last (NHWC); outputs
+and gradients are NCHW-*shaped* views of channels-last memory, which the next
+convolution reads without a transposing copy.
 """
 from __future__ import annotations
 
@@ -110,8 +104,7 @@ def _pad_nhwc(x: np.ndarray, ph: int, pw: int) -> np.ndarray:
 
 
 # cols is built and consumed in blocks of about this many bytes, so that each block
-# stays in the CPU's L2 cache between the copy that writes it and the GEMM that reads
-# it (256 KB - 1 MB measured alike; the whole matrix, tens of MB, was 1.5x-4x slower).
+# stays in the CPU's L2 cache between the copy that writes it and the GEMM that reads it.
 _BLOCK_BYTES = 512 * 1024
 # window rows (KW*C values) shorter than this are copied tap-major (``_im2col_views``)
 _SHORT_RUN = 12
@@ -149,11 +142,10 @@ def _im2col_views(block: np.ndarray, buf: np.ndarray):
     matrix in ``buf``: ``(dst, src, cols)``, where ``np.copyto(dst, src)`` fills
     ``cols`` (all three are views; nothing is copied here).
 
-    Each copied run is contiguous in both arrays; the copy's cost is per run, so the
-    memory order follows the longer run: pixel-major (a window row of KW*C floats per
-    run) or, when that is short (few channels: a depth map, an RGB image),
-    tap-major (a run of OW output pixels per kernel tap and channel), the cols matrix
-    then being the transpose of a (KH*KW*C, m) matrix. BLAS reads either layout.
+    The copy's cost is per contiguous run, so the memory order follows the longer run:
+    pixel-major (a window row of KW*C floats) or, with few channels, tap-major (a run of
+    OW output pixels per kernel tap and channel; cols is then the transpose of a
+    (KH*KW*C, m) matrix).
     """
     n, r, OW, KH, KW, C = block.shape
     m, K = n * r * OW, KH * KW * C

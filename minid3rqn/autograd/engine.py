@@ -16,9 +16,7 @@ stack) and calls the products from the output back to the leaves, summing the
 gradients that meet at a node.
 
 This file holds the Tensor and the ops its operators and methods call (``a + b``,
-``a @ b``, ``x[i]``, ``x.sum()``, ``x.T``, ...), each op's forward beside its
-backward. The other ops build on these in elementwise.py, reduce.py, shape.py, conv.py,
-lstm.py and sample.py.
+``a @ b``, ``x[i]``, ``x.sum()``, ...); the other ops build on these in the other files.
 """
 from __future__ import annotations
 
