@@ -1,21 +1,17 @@
-"""Pictures with Pillow only: colour maps, image grids, GIFs, bar charts and curves.
+"""Pictures with Pillow only: colour maps, image strips, GIFs, bar charts and curves.
 
 Every function takes NumPy arrays and returns uint8 RGB arrays (H, W, 3) or writes a
 file; nothing here needs matplotlib.
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-# Control points of two perceptual maps (sampled from the published viridis / magma).
+# Control points of a perceptual colour map (sampled from the published magma).
 _MAPS = {
-    "viridis": [(68, 1, 84), (72, 40, 120), (62, 74, 137), (49, 104, 142), (38, 130, 142),
-                (31, 158, 137), (53, 183, 121), (110, 206, 88), (181, 222, 43),
-                (253, 231, 37)],
     "magma": [(0, 0, 4), (28, 16, 68), (79, 18, 123), (129, 37, 129), (181, 54, 122),
               (229, 80, 100), (251, 135, 97), (254, 194, 135), (252, 253, 191)],
 }
@@ -87,18 +83,6 @@ def hstack(images, height: int, gap: int = 4, fill=255) -> np.ndarray:
             parts.append(np.full((height, gap, 3), fill, np.uint8))
         parts.append(resize(to_rgb(im), height))
     return np.concatenate(parts, axis=1)
-
-
-def image_grid(images, cols: int, gap: int = 2, fill=255) -> np.ndarray:
-    """Tile equally sized images into a grid of ``cols`` columns."""
-    images = [to_rgb(im) for im in images]
-    h, w = images[0].shape[:2]
-    rows = math.ceil(len(images) / cols)
-    out = np.full((rows * h + (rows - 1) * gap, cols * w + (cols - 1) * gap, 3), fill, np.uint8)
-    for k, im in enumerate(images):
-        r, c = divmod(k, cols)
-        out[r * (h + gap):r * (h + gap) + h, c * (w + gap):c * (w + gap) + w] = im
-    return out
 
 
 def label(img: np.ndarray, text: str, xy=(3, 2), color=(255, 255, 255)) -> np.ndarray:
@@ -220,22 +204,5 @@ def learning_curve_png(rows, path, title: str = "") -> Path:
     return path
 
 
-def compare_curves_png(curves: dict, path, key: str = "success", title: str = "",
-                       smooth: int = 1) -> Path:
-    """One panel with one line per run ({name: rows}), e.g. the four models' success."""
-    series = {}
-    for name, rows in curves.items():
-        y = np.asarray([r[key] for r in rows], float)
-        if smooth > 1 and len(y) >= smooth:
-            y = np.convolve(np.nan_to_num(y), np.ones(smooth) / smooth, mode="valid")
-            x = [r["steps"] for r in rows][smooth - 1:]
-        else:
-            x = [r["steps"] for r in rows]
-        series[name] = (x, y)
-    ylim = (0.0, 1.0) if key == "success" else None
-    line_plot(series, path, title=title, xlabel="environment steps", ylabel=key, ylim=ylim)
-    return Path(path)
-
-
-__all__ = ["colormap", "depth_to_rgb", "resize", "to_rgb", "hstack", "image_grid", "label",
-           "bar_chart", "write_gif", "line_plot", "learning_curve_png", "compare_curves_png"]
+__all__ = ["colormap", "depth_to_rgb", "resize", "to_rgb", "hstack", "label", "bar_chart",
+           "write_gif", "line_plot", "learning_curve_png"]

@@ -31,7 +31,7 @@ def test_binary_ops_with_broadcasting(name, shapes):
 
 UNARY = {
     "neg": ag.neg, "exp": ag.exp, "tanh": ag.tanh, "sigmoid": ag.sigmoid,
-    "softplus": ag.softplus, "relu": ag.relu, "elu": ag.elu, "abs": ag.abs,
+    "relu": ag.relu, "elu": ag.elu, "abs": ag.abs,
     "log": lambda x: ag.log(ag.abs(x) + 0.1), "sqrt": lambda x: ag.sqrt(ag.abs(x) + 0.1),
     "pow3": lambda x: x ** 3, "pow_half": lambda x: (ag.abs(x) + 0.2) ** 0.5,
     "clip": lambda x: ag.clip(x, -0.5, 0.7),
@@ -46,11 +46,10 @@ def test_unary_ops(name):
     gradcheck(UNARY[name], [x])
 
 
-def test_sigmoid_and_softplus_do_not_overflow():
+def test_sigmoid_does_not_overflow():
     x = Tensor(np.array([-1000.0, 0.0, 1000.0]))
     assert np.all(np.isfinite(ag.sigmoid(x).data))
-    assert np.all(np.isfinite(ag.softplus(x).data))
-    np.testing.assert_allclose(ag.softplus(x).data, [0.0, np.log(2), 1000.0])
+    np.testing.assert_allclose(ag.sigmoid(x).data, [0.0, 0.5, 1.0])
 
 
 @pytest.mark.parametrize("shapes", [((3, 4), (4, 2)), ((2, 3, 4), (4, 5)), ((4,), (4, 3)),
@@ -60,7 +59,7 @@ def test_matmul(shapes):
 
 
 # -- reductions ------------------------------------------------------------------------
-@pytest.mark.parametrize("op", [ag.sum, ag.mean, ag.max])
+@pytest.mark.parametrize("op", [ag.sum, ag.mean])
 @pytest.mark.parametrize("axis", [None, 0, 1, -1, (0, 2)])
 @pytest.mark.parametrize("keepdims", [False, True])
 def test_reductions(op, axis, keepdims):
@@ -82,12 +81,6 @@ def test_log_softmax_values_and_no_overflow():
     # adding a constant along the axis changes nothing (only differences matter)
     np.testing.assert_allclose(ag.log_softmax(Tensor(x[:1] + 5.0)).data, y[:1])
     assert ag.log_softmax(Tensor(x.astype(np.float32))).dtype == np.float32
-
-
-def test_max_shares_gradient_among_ties():
-    x = Tensor(np.array([1.0, 3.0, 3.0]), requires_grad=True)
-    ag.max(x).backward()
-    np.testing.assert_allclose(x.grad, [0.0, 0.5, 0.5])
 
 
 # -- shape ops -------------------------------------------------------------------------

@@ -165,16 +165,16 @@ def test_loss_prefers_the_true_depth_and_pose(flight):
         assert best < 0.8 * loss(d, p)
 
 
-def test_posenet_planar_and_forward_init():
+def test_posenet_forward_init():
     from minid3rqn.nets.posenet import PoseNet
     x = np.random.default_rng(0).random((2, 3, 16, 24)).astype(np.float32)
-    net = PoseNet(dof=3, pose_scale=0.1, head_gain=0.0, init_tz=(0.8, -0.8))
+    net = PoseNet(pose_scale=0.1, head_gain=0.0, init_tz=(0.8, -0.8))
     out = net(x, [x, x]).data
     assert out.shape == (2, 2, 6)
     np.testing.assert_allclose(out[:, :, 2], [[0.8, -0.8]] * 2, rtol=1e-5)
     assert np.all(out[:, :, [0, 1, 3, 4, 5]] == 0)
-    with pytest.raises(ValueError, match="dof"):
-        PoseNet(dof=4)
+    with pytest.raises(ValueError, match="init_tz"):
+        PoseNet(init_tz=(0.8,))
 
 
 def test_photometric_error_is_zero_for_equal_images():

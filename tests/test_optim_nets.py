@@ -4,13 +4,13 @@ import pytest
 
 from minid3rqn import autograd as ag
 from minid3rqn.autograd import Tensor, gradcheck
-from minid3rqn.autograd.optim import SGD, Adam, clip_grad_norm
-from minid3rqn.autograd.losses import huber_loss, l1_loss, mse_loss
+from minid3rqn.autograd.optim import Adam, clip_grad_norm
+from minid3rqn.autograd.losses import huber_loss, mse_loss
 from minid3rqn.nets import Linear, Module, ReLU, Sequential, Tanh
 
 
 @pytest.mark.optim
-@pytest.mark.parametrize("loss", [l1_loss, mse_loss,
+@pytest.mark.parametrize("loss", [mse_loss,
                                   lambda p, t: huber_loss(p, t, delta=0.7)])
 def test_losses_gradcheck(loss):
     rng = np.random.default_rng(0)
@@ -41,13 +41,11 @@ def _toy_regression(seed=0):
 
 @pytest.mark.optim
 @pytest.mark.nets
-@pytest.mark.parametrize("make_opt", [lambda p: Adam(p, lr=1e-2),
-                                      lambda p: SGD(p, lr=5e-2, momentum=0.9)])
-def test_tiny_mlp_fits_a_curve(make_opt):
+def test_tiny_mlp_fits_a_curve():
     x, y = _toy_regression()
     net = Sequential(Linear(1, 32, rng=1), Tanh(), Linear(32, 32, rng=2), Tanh(),
                      Linear(32, 1, rng=3))
-    opt = make_opt(net.parameters())
+    opt = Adam(net.parameters(), lr=1e-2)
     first = None
     for step in range(400):
         loss = mse_loss(net(Tensor(x)), y)

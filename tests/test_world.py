@@ -8,7 +8,7 @@ import pytest
 
 from minid3rqn.world import (ACTIONS, SCENARIOS, Camera, DroneEnv, SceneBatch, VecDroneEnv,
                              depth_to_rgb, inverse_warp_numpy, make_scene, nearest_distance,
-                             nearest_distance_batch, oracle_action, oracle_policy, paper_reward,
+                             nearest_distance_batch, oracle_policy, paper_reward,
                              pose_to_camera_transform, pymunk_nearest_distance, random_policy,
                              relative_transform, render, render_batch, sample_start_pose,
                              straight_policy, topdown)
@@ -59,14 +59,10 @@ def test_camera_horizon_row():
     cam, raised = Camera(), Camera(horizon_row=4)
     assert raised.cy == 4.0 and raised.K[1, 2] == 4.0 and raised.K[0, 2] == cam.cx
     np.testing.assert_allclose(raised.K @ raised.K_inv, np.eye(3), atol=1e-12)
-    assert cam.floor_reach() == pytest.approx(52 / 15.5)        # 1 m / y_n of the last row
-    assert raised.floor_reach() == pytest.approx(52 / 27)
+    # flying 1 m high, the last row meets the floor 1 m / y_n ahead
+    assert 1 / cam.row_rays()[-1] == pytest.approx(52 / 15.5)
+    assert 1 / raised.row_rays()[-1] == pytest.approx(52 / 27)
     assert Camera(horizon_row=15.5) == cam and hash(Camera(horizon_row=15.5)) == hash(cam)
-    # twice the resolution: the same horizon, the same rays at the image edges
-    big = raised.scaled(2)
-    assert big.cy == pytest.approx(8.5)
-    assert big.row_rays()[-1] == pytest.approx((63 - 8.5) / 104)
-    assert (big.height - 0.5 - big.cy) / big.fy == pytest.approx((31.5 - 4) / 52)
 
 
 @pytest.mark.parametrize("row, error", [(-1, ValueError), (31.5, ValueError),
@@ -333,7 +329,8 @@ def test_env_determinism_and_spaces():
     for _ in range(2):
         env = DroneEnv("channel", seed=4)
         obs, info = env.reset()
-        assert env.observation_space.contains(obs) and info["depth"].shape == (32, 104)
+        assert obs.shape == (32, 104, 3) and obs.dtype == np.uint8
+        assert info["depth"].shape == (32, 104)
         rng = np.random.default_rng(0)
         trace = [info["pose"]]
         for _ in range(5):
@@ -464,7 +461,7 @@ def test_bad_env_configs():
 
 def test_vec_env_matches_single_envs():
     n, seed = 3, 7
-    vec = VecDroneEnv(n, "intersections", seed=seed, autoreset=False)
+    vec = VecDroneEnv(n, "intersections", seed=seed)
     singles = [DroneEnv("intersections", seed=[seed, i]) for i in range(n)]
     obs, info = vec.reset()
     for i, env in enumerate(singles):
@@ -486,29 +483,10 @@ def test_vec_env_matches_single_envs():
             assert info["d_nearest"][i] == pytest.approx(inf["d_nearest"], abs=1e-9)
 
 
-def test_vec_env_autoreset():
-    vec = VecDroneEnv(2, "corners", seed=0, actions=[[2.0, 0.0]], max_steps=200)
-    vec.reset()
-    for _ in range(60):
-        obs, reward, term, trunc, info = vec.step(np.zeros(2, np.int64))
-        if info["done"].any():
-            break
-    i = int(np.flatnonzero(info["done"])[0])
-    assert term[i] and reward[i] == -1.0
-    assert info["step"][i] == 0 and not info["collided"][i]       # a fresh episode
-    assert not np.array_equal(info["final_pose"][i], info["pose"][i])
-    assert info["final_obs"].shape == obs.shape
-    new_rgb, new_depth = render(vec.scenes[i], info["pose"][i])
-    np.testing.assert_array_equal(obs[i], new_rgb)
-    np.testing.assert_array_equal(info["depth"][i], new_depth)
-    assert info["d_nearest"][i] == pytest.approx(
-        float(nearest_distance(vec.scenes[i], info["pose"][i][:2])))
-
-
 # ----------------------------------------------------------------------------- policies, pictures
 
 def test_policies():
-    env = VecDroneEnv(4, "corners", seed=0, observe=False, autoreset=False)
+    env = VecDroneEnv(4, "corners", seed=0, observe=False)
     env.reset()
     while env.active.any():
         _, _, _, _, info = env.step(oracle_policy(env))
@@ -519,8 +497,6 @@ def test_policies():
     assert info["collided"].all()
     acts = random_policy(np.random.default_rng(0))(env)
     assert acts.shape == (4,) and acts.dtype.kind == "i"
-    a = oracle_action(env.scenes[0], env.poses[0])
-    assert 0 <= a < 5
 
 
 def test_pictures(scenes):
@@ -531,24 +507,15 @@ def test_pictures(scenes):
     assert rgb[0, 0, 0] > rgb[0, 0, 2] and rgb[0, 1, 2] > rgb[0, 1, 0]   # red near, blue far
 
 
-def test_pilot_policy_and_calibrate_smoke(tmp_path):
-    from minid3rqn.world import calibrate, pilot_policy, save_gif
-    env = VecDroneEnv(3, "intersections", seed=2, observe=False, autoreset=False)
-    env.reset()
-    pilot = pilot_policy(np.random.default_rng(0))
-    taken = []
-    for _ in range(10):
-        a = pilot(env)
-        assert a.shape == (3,) and np.all((0 <= a) & (a < 5))
-        taken.append(a)
-        env.step(a)
-    assert len(np.unique(np.concatenate(taken))) > 1
+def test_calibrate_smoke_and_gif(tmp_path):
+    from minid3rqn.viz import write_gif
+    from minid3rqn.world import calibrate
     result = calibrate("corners", n_flights=3, seed=0, policies=("straight",))
     assert result["corners"]["straight"]["flights"] == 3
     with pytest.raises(ValueError, match="scenarios"):
         calibrate("moon", n_flights=2)
     rgb, depth = render(make_scene("basic", 0), (5.0, 5.0, 0.3))
-    save_gif([rgb, depth_to_rgb(depth)], tmp_path / "a.gif")
+    write_gif([rgb, depth_to_rgb(depth)], tmp_path / "a.gif")
     assert (tmp_path / "a.gif").stat().st_size > 0
 
 
@@ -559,20 +526,6 @@ def test_odd_image_sizes_have_finite_depth(scenes, shape):
     cam = Camera(*shape, hfov_deg=100.0)
     rgb, depth = render(scene, start_poses(scene, 1)[0], cam)
     assert rgb.shape == shape + (3,) and np.all(np.isfinite(depth)) and depth.min() > 0
-
-
-def test_episodes_per_world():
-    env = DroneEnv("corners", seed=3, episodes_per_world=2, observe=False)
-    seeds = [env.reset()[1]["scene_seed"] for _ in range(4)]
-    assert seeds[0] == seeds[1] != seeds[2] == seeds[3]
-    vec = VecDroneEnv(2, "corners", seed=3, episodes_per_world=2, observe=False,
-                      autoreset=False)
-    single = DroneEnv("corners", seed=[3, 1], episodes_per_world=2, observe=False)
-    for _ in range(3):
-        v = vec.reset()[1]
-        s = single.reset()[1]
-        assert v["scene_seed"][1] == s["scene_seed"]
-        np.testing.assert_array_equal(v["pose"][1], s["pose"])
 
 
 def test_wall_normals_face_the_camera():
@@ -606,15 +559,15 @@ def test_depth_only_renderer_equals_full_render(height):
 
 
 def test_cast_paths_agree(scenes):
-    """The single-pose cast, the padded few-pose cast and the flat many-pose cast give
-    the same columns, bit for bit."""
+    """The single-pose cast and the flat many-pose cast give the same columns, bit for
+    bit, with 2 poses and with 6."""
     xn = Camera().column_rays()
     for name in SCENARIOS:
         scene = scenes[name]
         poses = start_poses(scene, 6, seed=2)
-        many = cast_columns(scene.batch(), poses, xn)          # 6 poses: flat pairs
-        few = cast_columns(scene.batch(), poses[:3], xn)       # 3 poses: padded
-        for k in range(3):
+        many = cast_columns(scene.batch(), poses, xn)
+        few = cast_columns(scene.batch(), poses[:2], xn)
+        for k in range(2):
             one = cast_columns(scene.batch(), poses[k:k + 1], xn)
             for key in ("t", "s", "shade", "cos", "app"):
                 np.testing.assert_array_equal(one[key][0], many[key][k], err_msg=key)

@@ -1,9 +1,7 @@
-"""Convolution, transposed convolution, upsampling and pooling on NCHW images.
+"""Convolution and upsampling on NCHW images.
 
 Names and argument order follow ``torch.nn.functional``: ``conv2d(x, weight, bias,
-stride, padding)``, ``conv_transpose2d(x, weight, bias, stride, padding,
-output_padding)``, ``upsample(x, scale_factor, mode)`` (``F.interpolate``),
-``avg_pool2d`` and ``max_pool2d(x, kernel_size, stride, padding)``.
+stride, padding)`` and ``upsample(x, scale_factor, mode)`` (``F.interpolate``).
 
 Convolution as one matrix product (im2col)
 ------------------------------------------
@@ -21,49 +19,26 @@ matrix. The gradients are two more GEMMs::
     dL/dcols = G @ W        and dL/dxp[window of a row] += that row  (col2im)
 
 col2im is the adjoint of im2col: every window adds its row back to the pixels it
-read. Those sums are themselves a convolution, the *transposed convolution*
-``conv_transpose2d(G, w, stride)``, and that is how they are computed here (see
-``_transposed_conv``): a stride-1 correlation of the zero-padded ``G`` with the
+read. Those sums are themselves a convolution, the *transposed convolution* of ``G``
+(``_transposed_conv``): a stride-1 correlation of the zero-padded ``G`` with the
 flipped kernel, i.e. one more im2col + GEMM. With stride s the input splits into s x s
 interleaved phases, each a stride-1 correlation with the kernel taps ``w[..., a::s,
-b::s]`` (the "sub-pixel" decomposition). On DispNet-sized layers this made forward +
-backward 1.35x-1.5x faster than adding G @ W back one kernel offset (KH*KW strided
-slices) at a time; ``conv_transpose2d`` is the same function run forwards.
+b::s]`` (the "sub-pixel" decomposition).
 
-Speed, measured (benchmarks/bench_autograd.py):
-
-- cols is KH*KW times the size of the image, and moving it through main memory
-  cost more than the GEMM. So it is never stored whole: it is built and consumed in
-  blocks of about ``_BLOCK_BYTES`` that stay in the CPU cache, and the backward pass
-  rebuilds it from the padded input (kept by the closure) rather than keeping it.
-- im2col reads the input channels-last (NHWC), so that a window row is a run of KW*C
-  contiguous floats; with few channels (KW*C < ``_SHORT_RUN``) the copy runs
-  tap-major instead (runs of OW pixels). The GEMMs put the long (pixels) dimension
-  first, the orientation OpenBLAS runs fastest.
-- Outputs are NCHW-*shaped* views of channels-last memory (``y.transpose(0, 3, 1, 2)``
-  of an (N, OH, OW, O) array), and so are gradients: NumPy handles them
-  transparently, elementwise ops keep the layout, and the next convolution reads
-  them without a transposing copy. ``np.ascontiguousarray`` gives C order if needed.
+Speed (benchmarks/bench_autograd.py): cols is KH*KW times the size of the image, so it
+is built and consumed in cache-sized blocks (``_BLOCK_BYTES``) and rebuilt by the
+backward pass, never stored whole; im2col reads the input channels-last (NHWC); outputs
+and gradients are NCHW-*shaped* views of channels-last memory, which the next
+convolution reads without a transposing copy.
 """
 from __future__ import annotations
 
 import numpy as np
 from numpy.lib.stride_tricks import as_strided
 
-from .engine import Tensor, as_tensor
+from .engine import Tensor, float_tensor
 
 # -- argument checking ---------------------------------------------------------------
-
-
-def _arg(value, name: str, op: str) -> Tensor:
-    """``value`` as a float Tensor, or a TypeError that names the argument."""
-    if isinstance(value, Tensor):
-        return value
-    array = np.asarray(value)
-    if array.dtype not in (np.float32, np.float64):
-        raise TypeError(f"{op}: {name} must hold float32 or float64 values; got dtype "
-                        f"{array.dtype}")
-    return as_tensor(array)
 
 
 def _same_dtype(op: str, **tensors: Tensor) -> None:
@@ -102,39 +77,36 @@ def _out_size(op: str, x_shape, kernel, stride, padding) -> tuple[int, int]:
     return (H + 2 * ph - KH) // stride[0] + 1, (W + 2 * pw - KW) // stride[1] + 1
 
 
-def _check_conv_args(op, x, weight, bias, c_in_axis, c_out_axis):
+def _check_conv_args(op, x, weight, bias):
     _image(x, op)
     if weight.ndim != 4:
-        layout = "(C_out, C_in, KH, KW)" if c_in_axis == 1 else "(C_in, C_out, KH, KW)"
-        raise ValueError(f"{op}: weight must be 4-D {layout}; got shape {weight.shape}")
-    if x.shape[1] != weight.shape[c_in_axis]:
+        raise ValueError(f"{op}: weight must be 4-D (C_out, C_in, KH, KW); got shape "
+                         f"{weight.shape}")
+    if x.shape[1] != weight.shape[1]:
         raise ValueError(f"{op}: x has {x.shape[1]} channels but weight {weight.shape} "
-                         f"expects C_in = {weight.shape[c_in_axis]} (axis {c_in_axis})")
-    if bias is not None and bias.shape != (weight.shape[c_out_axis],):
-        raise ValueError(f"{op}: bias must have shape (C_out,) = "
-                         f"({weight.shape[c_out_axis]},); got {bias.shape}")
+                         f"expects C_in = {weight.shape[1]} (axis 1)")
+    if bias is not None and bias.shape != (weight.shape[0],):
+        raise ValueError(f"{op}: bias must have shape (C_out,) = ({weight.shape[0]},); "
+                         f"got {bias.shape}")
     _same_dtype(op, x=x, weight=weight, bias=bias)
 
 
 # -- the machinery: channels-last im2col and the transposed convolution ---------------
 
 
-def _pad_nhwc(x: np.ndarray, top: int, bottom: int, left: int, right: int) -> np.ndarray:
-    """NCHW ``x`` -> channels-last (N, H + top + bottom, W + left + right, C), zeros
-    around. Negative amounts crop. One copy, which also does the transposition."""
+def _pad_nhwc(x: np.ndarray, ph: int, pw: int) -> np.ndarray:
+    """NCHW ``x`` -> channels-last (N, H + 2 ph, W + 2 pw, C), zeros around. One copy,
+    which also does the transposition."""
     N, C, H, W = x.shape
-    out = np.zeros((N, H + top + bottom, W + left + right, C), dtype=x.dtype)
-    src = x[:, :, max(-top, 0):H - max(-bottom, 0), max(-left, 0):W - max(-right, 0)]
-    out[:, max(top, 0):out.shape[1] - max(bottom, 0),
-        max(left, 0):out.shape[2] - max(right, 0)] = src.transpose(0, 2, 3, 1)
+    out = np.zeros((N, H + 2 * ph, W + 2 * pw, C), dtype=x.dtype)
+    out[:, ph:ph + H, pw:pw + W] = x.transpose(0, 2, 3, 1)
     return out
 
 
 # cols is built and consumed in blocks of about this many bytes, so that each block
-# stays in the CPU's L2 cache between the copy that writes it and the GEMM that reads
-# it (256 KB - 1 MB measured alike; the whole matrix, tens of MB, was 1.5x-4x slower).
+# stays in the CPU's L2 cache between the copy that writes it and the GEMM that reads it.
 _BLOCK_BYTES = 512 * 1024
-# window rows (KW*C values) shorter than this are copied tap-major (``_im2col_block``)
+# window rows (KW*C values) shorter than this are copied tap-major (``_im2col_views``)
 _SHORT_RUN = 12
 
 
@@ -170,11 +142,10 @@ def _im2col_views(block: np.ndarray, buf: np.ndarray):
     matrix in ``buf``: ``(dst, src, cols)``, where ``np.copyto(dst, src)`` fills
     ``cols`` (all three are views; nothing is copied here).
 
-    Each copied run is contiguous in both arrays; the copy's cost is per run, so the
-    memory order follows the longer run: pixel-major (a window row of KW*C floats per
-    run) or, when that is short (few channels: a depth map, an RGB image),
-    tap-major (a run of OW output pixels per kernel tap and channel), the cols matrix
-    then being the transpose of a (KH*KW*C, m) matrix. BLAS reads either layout.
+    The copy's cost is per contiguous run, so the memory order follows the longer run:
+    pixel-major (a window row of KW*C floats) or, with few channels, tap-major (a run of
+    OW output pixels per kernel tap and channel; cols is then the transpose of a
+    (KH*KW*C, m) matrix).
     """
     n, r, OW, KH, KW, C = block.shape
     m, K = n * r * OW, KH * KW * C
@@ -186,24 +157,14 @@ def _im2col_views(block: np.ndarray, buf: np.ndarray):
             cols_t.T)
 
 
-def _im2col_block(block: np.ndarray, buf: np.ndarray) -> np.ndarray:
-    """Copy a block of windows into ``buf`` (see ``_im2col_views``); return the cols
-    matrix."""
-    dst, src, cols = _im2col_views(block, buf)
-    np.copyto(dst, src)
-    return cols
-
-
 def conv2d_nhwc_plan(xp: np.ndarray, kernel, stride, out_hw, out: np.ndarray,
                      work: np.ndarray | None = None) -> list:
     """The schedule of ``conv2d_nhwc`` without running it: for each cache-sized block
     of output pixels, ``(dst, src, cols, y)`` (views into ``work``, ``xp`` and ``out``)
     meaning ``np.copyto(dst, src); np.matmul(cols, wmat_t, out=y)``.
 
-    A caller that convolves the same buffers again and again (the inference paths,
-    whose buffers are allocated once) builds it once and runs it with
-    ``run_conv_plan``: that skips re-deriving the strided views on every call, which
-    at batch 1 costs more than the arithmetic of the smaller layers.
+    A caller that convolves the same buffers again and again (the inference paths)
+    builds it once and runs it with ``run_conv_plan``, skipping the strided views.
     ``work``: a 1-D scratch of at least ``im2col_work_size`` elements (None: a new one).
     """
     windows = _windows(xp, kernel, stride, out_hw)
@@ -229,16 +190,12 @@ def conv2d_nhwc(xp: np.ndarray, kernel, stride, out_hw, wmat_t: np.ndarray,
                 ) -> np.ndarray:
     """Channels-last convolution without bias: ``y = cols @ wmat_t``, (N, OH, OW, O).
 
-    The convolution arithmetic itself, in one place: ``conv2d``'s forward, the
-    backward passes (``_transposed_conv``, ``conv_transpose2d``) and the graph-free
-    inference path (``nets.fast.ConvInference``) all run it (the last through
-    ``conv2d_nhwc_plan`` + ``run_conv_plan``, which is what this function does).
-
+    The convolution arithmetic in one place: ``conv2d``'s forward, its input gradient
+    (``_transposed_conv``) and the graph-free inference path (``nets.fast``) run it.
     ``xp`` is the zero-padded input, channels-last (N, Hp, Wp, C); ``wmat_t`` the weight
-    as a (KH*KW*C, O) matrix (rows ordered like a cols row). im2col + GEMM one
-    cache-sized block of output pixels at a time. ``out`` (C-contiguous (N, OH, OW, O))
-    and ``work`` (a 1-D scratch array of at least ``im2col_work_size`` elements)
-    let a caller that runs the same shapes again and again reuse its memory.
+    as a (KH*KW*C, O) matrix (rows ordered like a cols row). ``out`` (C-contiguous
+    (N, OH, OW, O)) and ``work`` (1-D scratch of ``im2col_work_size`` elements) let a
+    caller reuse its memory.
     """
     N, (OH, OW), O = xp.shape[0], out_hw, wmat_t.shape[1]
     y = np.empty((N, OH, OW, O), dtype=xp.dtype) if out is None else out
@@ -264,7 +221,8 @@ def _conv_weight_grad(xp: np.ndarray, kernel, stride, g: np.ndarray) -> np.ndarr
     for block, index in _blocks(windows):
         if buf is None:
             buf = np.empty(block.size, dtype=xp.dtype)
-        cols = _im2col_block(block, buf)
+        dst, src, cols = _im2col_views(block, buf)
+        np.copyto(dst, src)
         total += cols.T @ g[index].reshape(len(cols), O)
     return total
 
@@ -341,12 +299,13 @@ def conv2d(x, weight, bias=None, stride=1, padding=0) -> Tensor:
         (N, C_out, OH, OW) with OH = floor((H + 2 p_h - KH) / s_h) + 1 (same for W).
 
     Math (module docstring): y = b + cols @ W^T with cols the im2col matrix;
-    dL/dW = G^T cols, dL/db = sum of G over pixels, dL/dx = conv_transpose2d(G, w).
+    dL/dW = G^T cols, dL/db = sum of G over pixels, dL/dx = the transposed convolution
+    of G (``_transposed_conv``).
     """
     op = "conv2d"
-    x, weight = _arg(x, "x", op), _arg(weight, "weight", op)
-    bias = None if bias is None else _arg(bias, "bias", op)
-    _check_conv_args(op, x, weight, bias, 1, 0)
+    x, weight = float_tensor(x, "x", op), float_tensor(weight, "weight", op)
+    bias = None if bias is None else float_tensor(bias, "bias", op)
+    _check_conv_args(op, x, weight, bias)
     stride = _int_pair(stride, "stride", op, 1)
     padding = _int_pair(padding, "padding", op, 0)
     N, C, H, W = x.shape
@@ -354,7 +313,7 @@ def conv2d(x, weight, bias=None, stride=1, padding=0) -> Tensor:
     OH, OW = _out_size(op, x.shape, (KH, KW), stride, padding)
     (ph, pw) = padding
 
-    xp = _pad_nhwc(x.data, ph, ph, pw, pw)                     # (N, Hp, Wp, C)
+    xp = _pad_nhwc(x.data, ph, pw)                     # (N, Hp, Wp, C)
     wmat = weight.data.transpose(0, 2, 3, 1).reshape(O, KH * KW * C)
     y = conv2d_nhwc(xp, (KH, KW), stride, (OH, OW), wmat.T)     # cols @ W^T
     if bias is not None:
@@ -372,72 +331,6 @@ def conv2d(x, weight, bias=None, stride=1, padding=0) -> Tensor:
         if bias is not None and bias.requires_grad:         # sum over pixels, as a GEMV
             pixels = g.reshape(-1, O)                            # (6x faster than .sum)
             db = np.ones(len(pixels), dtype=g.dtype) @ pixels
-        return dx, dw, db
-
-    parents = (x, weight) if bias is None else (x, weight, bias)
-    return Tensor.from_op(out, parents, vjp, op)
-
-
-def conv_transpose2d(x, weight, bias=None, stride=1, padding=0, output_padding=0
-                     ) -> Tensor:
-    """Transposed convolution (``torch.nn.functional.conv_transpose2d``).
-
-    The adjoint of ``conv2d`` with respect to its input: every input pixel adds
-    ``x[n, c, u, v] * w[c, :, :, :]`` into the output at (s u - p, s v - p), windows
-    overlapping where the kernel is larger than the stride.
-
-        y[n, o, Y, X] = b[o] + sum_{c, u, v, i, j: s u + i = Y + p, s v + j = X + p}
-                        x[n, c, u, v] w[c, o, i, j]
-
-    Args:
-        x: (N, C_in, H, W).   weight: (C_in, C_out, KH, KW) (PyTorch's layout).
-        bias: (C_out,) or None.   stride, padding, output_padding: an int or a pair;
-            output_padding (< stride) adds rows/columns at the bottom/right.
-
-    Returns:
-        (N, C_out, (H - 1) s - 2 p + KH + output_padding, ...).
-
-    Gradients: dL/dx = conv2d(G, w, stride, padding) (the forward of a convolution),
-    dL/dw = the same GEMM as a convolution's weight gradient with x and G swapped,
-    dL/db = sum of G over pixels.
-    """
-    op = "conv_transpose2d"
-    x, weight = _arg(x, "x", op), _arg(weight, "weight", op)
-    bias = None if bias is None else _arg(bias, "bias", op)
-    _check_conv_args(op, x, weight, bias, 0, 1)
-    stride = _int_pair(stride, "stride", op, 1)
-    padding = _int_pair(padding, "padding", op, 0)
-    output_padding = _int_pair(output_padding, "output_padding", op, 0)
-    if output_padding[0] >= stride[0] or output_padding[1] >= stride[1]:
-        raise ValueError(f"{op}: output_padding must be smaller than stride; got "
-                         f"output_padding {output_padding} with stride {stride}")
-    N, Ci, H, W = x.shape
-    _, Co, KH, KW = weight.shape
-    (sh, sw), (ph, pw), (oph, opw) = stride, padding, output_padding
-    OH = (H - 1) * sh - 2 * ph + KH + oph
-    OW = (W - 1) * sw - 2 * pw + KW + opw
-    if OH < 1 or OW < 1:
-        raise ValueError(f"{op}: padding {padding} leaves no output for x {x.shape} and "
-                         f"a {KH}x{KW} kernel at stride {stride}")
-
-    xh = _nhwc(x.data)                                           # (N, H, W, Ci)
-    y = _transposed_conv(xh, weight.data, stride, (ph, pw), (OH, OW))
-    if bias is not None:
-        y += bias.data
-    out = _nchw_view(y)
-
-    def vjp(g):
-        # G on the full (uncropped) output grid, then read back as a convolution does
-        gp = _pad_nhwc(g, ph, KH + (H - 1) * sh - OH - ph, pw, KW + (W - 1) * sw - OW - pw)
-        dx = dw = db = None
-        if x.requires_grad:
-            wmat = weight.data.transpose(0, 2, 3, 1).reshape(Ci, KH * KW * Co)
-            dx = _nchw_view(conv2d_nhwc(gp, (KH, KW), stride, (H, W), wmat.T))
-        if weight.requires_grad:                                 # (KH*KW*Co, Ci)
-            dw = _conv_weight_grad(gp, (KH, KW), stride, xh).T.reshape(Ci, KH, KW, Co)
-            dw = np.ascontiguousarray(dw.transpose(0, 3, 1, 2))
-        if bias is not None and bias.requires_grad:
-            db = g.sum(axis=(0, 2, 3))
         return dx, dw, db
 
     parents = (x, weight) if bias is None else (x, weight, bias)
@@ -467,7 +360,7 @@ def upsample(x, scale_factor=2, mode: str = "nearest") -> Tensor:
               phase a; the gradient sends G back along the same two weights.
     """
     op = "upsample"
-    x = _arg(x, "x", op)
+    x = float_tensor(x, "x", op)
     _image(x, op)
     sh, sw = _int_pair(scale_factor, "scale_factor", op, 1)
     N, C, H, W = x.shape
@@ -548,91 +441,3 @@ def _lerp_up_adjoint(g: np.ndarray, s: int, axis: int) -> np.ndarray:
     dx[_along(axis, slice(0, 1))] += edge[_along(axis, slice(0, 1))]
     dx[_along(axis, slice(L - 1, L))] += edge[_along(axis, slice(L + 1, L + 2))]
     return dx
-
-
-# -- pooling ----------------------------------------------------------------------------
-
-
-def _pool_args(op, x, kernel_size, stride, padding):
-    _image(x, op)
-    kernel = _int_pair(kernel_size, "kernel_size", op, 1)
-    stride = kernel if stride is None else _int_pair(stride, "stride", op, 1)
-    padding = _int_pair(padding, "padding", op, 0)
-    if 2 * padding[0] > kernel[0] or 2 * padding[1] > kernel[1]:
-        raise ValueError(f"{op}: padding must be at most half of kernel_size (as in "
-                         f"PyTorch); got padding {padding} for kernel_size {kernel}")
-    out_hw = _out_size(op, x.shape, kernel, stride, padding)
-    return kernel, stride, padding, out_hw
-
-
-def _taps(kernel, stride, out_hw):
-    """For each kernel offset (i, j): the slice of the padded input it reads."""
-    (KH, KW), (sh, sw), (OH, OW) = kernel, stride, out_hw
-    for i in range(KH):
-        for j in range(KW):
-            yield (Ellipsis, slice(i, i + sh * (OH - 1) + 1, sh),
-                   slice(j, j + sw * (OW - 1) + 1, sw))
-
-
-def avg_pool2d(x, kernel_size, stride=None, padding=0) -> Tensor:
-    """Average over KH x KW windows (``F.avg_pool2d``, count_include_pad=True).
-
-    y[n, c, u, v] = 1/(KH KW) sum_{i, j} xp[n, c, s u + i, s v + j]  (xp zero-padded,
-    padded zeros counted);  dL/dxp[window] += G / (KH KW), then the padding is cut.
-
-    Args:
-        x: (N, C, H, W).   kernel_size: int or pair.   stride: int, pair, or None
-            (= kernel_size).   padding: int or pair, at most half the kernel.
-    """
-    op = "avg_pool2d"
-    x = _arg(x, "x", op)
-    kernel, stride, (ph, pw), out_hw = _pool_args(op, x, kernel_size, stride, padding)
-    N, C, H, W = x.shape
-    xp = np.pad(x.data, ((0, 0), (0, 0), (ph, ph), (pw, pw))) if ph or pw else x.data
-    y = np.zeros((N, C) + out_hw, dtype=x.dtype)
-    for tap in _taps(kernel, stride, out_hw):
-        y += xp[tap]
-    scale = 1.0 / (kernel[0] * kernel[1])
-    y *= scale
-
-    def vjp(g):
-        gs = g * scale
-        dxp = np.zeros(xp.shape, dtype=x.dtype)
-        for tap in _taps(kernel, stride, out_hw):
-            dxp[tap] += gs
-        return (dxp[:, :, ph:ph + H, pw:pw + W],)
-
-    return Tensor.from_op(y, (x,), vjp, op)
-
-
-def max_pool2d(x, kernel_size, stride=None, padding=0) -> Tensor:
-    """Maximum over KH x KW windows (``F.max_pool2d``; padding counts as -inf).
-
-    y = max_{i, j} xp[s u + i, s v + j];  dL/dx goes entirely to the arg-max of each
-    window (the first one in row-major window order on ties, as PyTorch).
-    """
-    op = "max_pool2d"
-    x = _arg(x, "x", op)
-    kernel, stride, (ph, pw), out_hw = _pool_args(op, x, kernel_size, stride, padding)
-    N, C, H, W = x.shape
-    xp = (np.pad(x.data, ((0, 0), (0, 0), (ph, ph), (pw, pw)), constant_values=-np.inf)
-          if ph or pw else x.data)
-    taps = list(_taps(kernel, stride, out_hw))
-    y = xp[taps[0]].copy()
-    arg = np.zeros(y.shape, dtype=np.int32)
-    for k, tap in enumerate(taps[1:], start=1):
-        window = xp[tap]
-        better = window > y
-        np.copyto(y, window, where=better)
-        arg[better] = k
-
-    def vjp(g):
-        dxp = np.zeros(xp.shape, dtype=x.dtype)
-        for k, tap in enumerate(taps):
-            dxp[tap] += np.where(arg == k, g, 0)
-        return (dxp[:, :, ph:ph + H, pw:pw + W],)
-
-    return Tensor.from_op(y, (x,), vjp, op)
-
-
-__all__ = ["conv2d", "conv_transpose2d", "upsample", "avg_pool2d", "max_pool2d"]

@@ -55,13 +55,6 @@ def tanh(x) -> Tensor:
     return Tensor.from_op(y, (x,), lambda g: (g * (1 - y * y),), "tanh")
 
 
-def softplus(x) -> Tensor:
-    """y = ln(1 + e^x);  dy/dx = sigmoid(x). Computed as max(x,0) + ln(1 + e^-|x|)."""
-    x = as_tensor(x)
-    y = np.maximum(x.data, 0) + np.log1p(np.exp(-np.abs(x.data)))
-    return Tensor.from_op(y, (x,), lambda g: (g * _stable_sigmoid(x.data),), "softplus")
-
-
 # -- selection -----------------------------------------------------------------------
 def clip(x, low=None, high=None) -> Tensor:
     """y = min(max(x, low), high);  dy/dx = 1 inside (low, high), else 0."""
@@ -95,7 +88,3 @@ def minimum(a, b) -> Tensor:
     """y = min(a, b);  the gradient goes to the smaller (to a on ties)."""
     a, b = broadcast_pair(a, b, "minimum")
     return where(a.data <= b.data, a, b)
-
-
-__all__ = ["sqrt", "abs", "elu", "sigmoid", "tanh", "softplus", "clip", "where",
-           "maximum", "minimum"]

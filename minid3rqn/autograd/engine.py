@@ -16,13 +16,10 @@ stack) and calls the products from the output back to the leaves, summing the
 gradients that meet at a node.
 
 This file holds the Tensor and the ops its operators and methods call (``a + b``,
-``a @ b``, ``x[i]``, ``x.sum()``, ``x.T``, ...), each op's forward beside its
-backward. The other ops build on these in elementwise.py, reduce.py, shape.py, conv.py,
-lstm.py and sample.py.
+``a @ b``, ``x[i]``, ``x.sum()``, ...); the other ops build on these in the other files.
 """
 from __future__ import annotations
 
-import builtins
 import contextlib
 from typing import Callable, Iterable, Sequence
 
@@ -136,18 +133,8 @@ class Tensor:
     def __len__(self) -> int:
         return len(self.data)
 
-    def numpy(self) -> np.ndarray:
-        return self.data
-
     def item(self) -> float:
         return self.data.item()
-
-    def detach(self) -> "Tensor":
-        """The same values, cut from the graph."""
-        return Tensor(self.data)
-
-    def astype(self, dtype) -> "Tensor":
-        return astype(self, dtype)
 
     def zero_grad(self) -> None:
         self.grad = None
@@ -254,9 +241,6 @@ class Tensor:
     def mean(self, axis=None, keepdims=False):
         return mean(self, axis, keepdims)
 
-    def max(self, axis=None, keepdims=False):
-        return max(self, axis, keepdims)
-
     def reshape(self, *shape):
         if len(shape) == 1 and isinstance(shape[0], (tuple, list)):
             shape = tuple(shape[0])
@@ -266,15 +250,6 @@ class Tensor:
         if len(axes) == 1 and isinstance(axes[0], (tuple, list)):
             axes = tuple(axes[0])
         return transpose(self, axes or None)
-
-    def exp(self):
-        return exp(self)
-
-    def log(self):
-        return log(self)
-
-    def relu(self):
-        return relu(self)
 
 
 def _topological_order(root: Tensor) -> list[Tensor]:
@@ -308,6 +283,17 @@ def as_tensor(x, like: Tensor | None = None) -> Tensor:
     if isinstance(x, np.ndarray) and dtype is None:
         return Tensor(x)
     return Tensor(np.asarray(x, dtype=dtype if dtype is not None else np.float32))
+
+
+def float_tensor(value, name: str, op: str) -> Tensor:
+    """``value`` as a Tensor, or a TypeError naming the argument if it holds no floats."""
+    if isinstance(value, Tensor):
+        return value
+    array = np.asarray(value)
+    if array.dtype not in FLOAT_DTYPES:
+        raise TypeError(f"{op}: {name} must hold float32 or float64 values; got dtype "
+                        f"{array.dtype}")
+    return as_tensor(array)
 
 
 def unbroadcast(grad: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -402,7 +388,7 @@ def pow(x, exponent) -> Tensor:
     return Tensor.from_op(y, (x,), lambda g: (g * p * x.data ** (p - 1),), "pow")
 
 
-# -- exp, log, relu, and a change of dtype ---------------------------------------------
+# -- exp, log, relu ---------------------------------------------------------------------
 def exp(x) -> Tensor:
     """y = e^x;  dy/dx = e^x = y."""
     x = as_tensor(x)
@@ -421,13 +407,6 @@ def relu(x) -> Tensor:
     x = as_tensor(x)
     mask = x.data > 0
     return Tensor.from_op(x.data * mask, (x,), lambda g: (g * mask,), "relu")
-
-
-def astype(x, dtype) -> Tensor:
-    """y = x in another float dtype;  dy/dx = 1 (the gradient converts back)."""
-    x = as_tensor(x)
-    old = x.dtype
-    return Tensor.from_op(x.data.astype(dtype), (x,), lambda g: (g.astype(old),), "astype")
 
 
 # -- matrix product: @ -----------------------------------------------------------------
@@ -477,7 +456,7 @@ def _pair_matmul(a, b) -> tuple[Tensor, Tensor]:
     return a, b
 
 
-# -- reductions: sum, mean, max --------------------------------------------------------
+# -- reductions: sum, mean -----------------------------------------------------------
 # A reduction removes axes; its gradient puts them back (``keepdims`` shape) and
 # broadcasts ``g`` over them, because every reduced entry influenced the result.
 def reduction_axes(axis, ndim: int, op: str) -> tuple[int, ...]:
@@ -488,10 +467,10 @@ def reduction_axes(axis, ndim: int, op: str) -> tuple[int, ...]:
     axes = (axis,) if isinstance(axis, (int, np.integer)) else tuple(axis)
     out = []
     for a in axes:
-        if not -ndim <= a < builtins.max(ndim, 1):
+        if not -ndim <= a < max(ndim, 1):
             raise ValueError(f"{op}: axis {a} is out of range for a tensor with "
                              f"{ndim} dimensions")
-        out.append(a % builtins.max(ndim, 1))
+        out.append(a % max(ndim, 1))
     return tuple(sorted(set(out)))
 
 
@@ -521,24 +500,6 @@ def mean(x, axis=None, keepdims: bool = False) -> Tensor:
                                                      x.shape).astype(x.dtype),), "mean")
 
 
-def max(x, axis=None, keepdims: bool = False) -> Tensor:
-    """y = max_i x_i over ``axis``;  dy/dx_i = 1 at the maximum, else 0.
-
-    On ties the gradient is shared equally among the tied entries (a subgradient).
-    """
-    x = as_tensor(x)
-    axes = reduction_axes(axis, x.ndim, "max")
-    y_keep = np.max(x.data, axis=axes, keepdims=True)
-    y = y_keep if keepdims else np.squeeze(y_keep, axis=axes)
-
-    def vjp(g):
-        hit = x.data == y_keep
-        share = hit / np.sum(hit, axis=axes, keepdims=True)
-        return (_regrow(g, axes, keepdims) * share.astype(x.dtype),)
-
-    return Tensor.from_op(np.asarray(y), (x,), vjp, "max")
-
-
 # -- moving entries: reshape, transpose, indexing --------------------------------------
 # Their gradients move ``g`` back the same way.
 def reshape(x, shape) -> Tensor:
@@ -559,7 +520,7 @@ def transpose(x, axes=None) -> Tensor:
     if axes is None:
         axes = tuple(reversed(range(x.ndim)))
     axes = tuple(int(a) for a in axes)
-    if sorted(a % builtins.max(x.ndim, 1) for a in axes) != list(range(x.ndim)):
+    if sorted(a % max(x.ndim, 1) for a in axes) != list(range(x.ndim)):
         raise ValueError(f"transpose: axes {axes} are not a permutation of "
                          f"0..{x.ndim - 1} for shape {x.shape}")
     inverse = tuple(np.argsort(axes))

@@ -30,15 +30,14 @@ class GradcheckError(AssertionError):
     """Raised when an analytic gradient disagrees with central differences."""
 
 
-def _scalar_objective(fn: Callable, arrays: Sequence[np.ndarray], u: np.ndarray) -> float:
-    out = fn(*[Tensor(a) for a in arrays])
-    return float(np.sum(_as_array(out) * u))
-
-
 def _as_array(out) -> np.ndarray:
     if not isinstance(out, Tensor):
         raise TypeError(f"gradcheck: fn must return a Tensor; got {type(out).__name__}")
     return out.data
+
+
+def _agree(exact: float, numeric: float, atol: float, rtol: float) -> bool:
+    return abs(exact - numeric) <= atol + rtol * abs(numeric)
 
 
 def gradcheck(fn: Callable[..., Tensor], inputs: Sequence[np.ndarray], *,
@@ -90,40 +89,48 @@ def gradcheck(fn: Callable[..., Tensor], inputs: Sequence[np.ndarray], *,
                 for i in range(len(arrays))]
 
     def objective(shifted: list[np.ndarray]) -> float:
-        return _scalar_objective(fn, shifted, u)
+        """L = <u, fn(shifted)>."""
+        return float(np.sum(_as_array(fn(*[Tensor(a) for a in shifted])) * u))
 
-    # 1. Directional check (VJP vs numerical JVP).
+    _check_directions(objective, arrays, analytic, which, rng, n_directions, eps, atol, rtol)
+    if elementwise is None:
+        elementwise = sum(arrays[i].size for i in which) <= max_elementwise
+    if elementwise:
+        _check_entries(objective, arrays, analytic, which, eps, atol, rtol)
+    return True
+
+
+def _check_directions(objective, arrays, analytic, which, rng, n_directions, eps, atol,
+                      rtol) -> None:
+    """Check 1: the VJP <J^T u, v> against the central-difference JVP along random v."""
     for d in range(n_directions):
         v = {i: rng.standard_normal(arrays[i].shape) for i in which}
         plus = [a + eps * v[i] if i in v else a for i, a in enumerate(arrays)]
         minus = [a - eps * v[i] if i in v else a for i, a in enumerate(arrays)]
         numeric = (objective(plus) - objective(minus)) / (2 * eps)
         exact = sum(float(np.sum(analytic[i] * v[i])) for i in which)
-        if not abs(exact - numeric) <= atol + rtol * abs(numeric):
+        if not _agree(exact, numeric, atol, rtol):
             raise GradcheckError(
                 f"gradcheck: directional derivative {d} disagrees: analytic (VJP) "
                 f"{exact:.10g} vs numeric (JVP) {numeric:.10g}; "
                 f"difference {abs(exact - numeric):.3g}")
 
-    # 2. Elementwise check on small inputs.
-    total = sum(arrays[i].size for i in which)
-    if elementwise is None:
-        elementwise = total <= max_elementwise
-    if elementwise:
-        for i in which:
-            flat = arrays[i].reshape(-1)
-            for k in range(flat.size):
-                saved = flat[k]
-                flat[k] = saved + eps
-                f_plus = objective(arrays)
-                flat[k] = saved - eps
-                f_minus = objective(arrays)
-                flat[k] = saved
-                numeric = (f_plus - f_minus) / (2 * eps)
-                exact = analytic[i].reshape(-1)[k]
-                if not abs(exact - numeric) <= atol + rtol * abs(numeric):
-                    index = [int(j) for j in np.unravel_index(k, arrays[i].shape)]
-                    raise GradcheckError(
-                        f"gradcheck: d/d inputs[{i}]{index} disagrees: analytic "
-                        f"{exact:.10g} vs numeric {numeric:.10g}")
-    return True
+
+def _check_entries(objective, arrays, analytic, which, eps, atol, rtol) -> None:
+    """Check 2: every entry of every checked input perturbed alone."""
+    for i in which:
+        flat = arrays[i].reshape(-1)
+        for k in range(flat.size):
+            saved = flat[k]
+            flat[k] = saved + eps
+            f_plus = objective(arrays)
+            flat[k] = saved - eps
+            f_minus = objective(arrays)
+            flat[k] = saved
+            numeric = (f_plus - f_minus) / (2 * eps)
+            exact = analytic[i].reshape(-1)[k]
+            if not _agree(exact, numeric, atol, rtol):
+                index = [int(j) for j in np.unravel_index(k, arrays[i].shape)]
+                raise GradcheckError(
+                    f"gradcheck: d/d inputs[{i}]{index} disagrees: analytic "
+                    f"{exact:.10g} vs numeric {numeric:.10g}")

@@ -1,7 +1,7 @@
-"""Losses: L1, MSE and Huber, each reducing to a mean (or per-element with reduction="none").
+"""Losses: MSE and Huber, each reducing to a mean (or per-element with reduction="none").
 
 Composed from the basic ops, so their gradients come for free and are checked through
-those ops:  L1 = mean |p - t|,  MSE = mean (p - t)^2,
+those ops:  MSE = mean (p - t)^2,
 Huber_delta(r) = r^2 / 2 if |r| <= delta else delta (|r| - delta / 2).
 """
 from __future__ import annotations
@@ -9,15 +9,11 @@ from __future__ import annotations
 from .elementwise import abs, clip
 from .engine import Tensor, as_tensor, mean, mul, sub
 
-_REDUCTIONS = ("mean", "sum", "none")
+_REDUCTIONS = ("mean", "none")
 
 
 def _reduce(loss: Tensor, reduction: str) -> Tensor:
-    if reduction == "mean":
-        return mean(loss)
-    if reduction == "sum":
-        return loss.sum()
-    return loss
+    return mean(loss) if reduction == "mean" else loss
 
 
 def _residual(prediction, target, name: str, reduction: str) -> Tensor:
@@ -29,11 +25,6 @@ def _residual(prediction, target, name: str, reduction: str) -> Tensor:
         raise ValueError(f"{name}: prediction has shape {prediction.shape} but target has "
                          f"shape {target.shape}; they must match")
     return sub(prediction, target)
-
-
-def l1_loss(prediction, target, reduction: str = "mean") -> Tensor:
-    """mean |prediction - target|."""
-    return _reduce(abs(_residual(prediction, target, "l1_loss", reduction)), reduction)
 
 
 def mse_loss(prediction, target, reduction: str = "mean") -> Tensor:
@@ -54,6 +45,3 @@ def huber_loss(prediction, target, delta: float = 1.0, reduction: str = "mean") 
     r = abs(_residual(prediction, target, "huber_loss", reduction))
     q = clip(r, 0.0, delta)
     return _reduce(mul(q, sub(r, mul(q, 0.5))), reduction)
-
-
-__all__ = ["l1_loss", "mse_loss", "huber_loss"]

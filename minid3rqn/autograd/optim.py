@@ -1,7 +1,8 @@
-"""Optimizers (SGD with momentum, Adam) and gradient clipping by global norm.
+"""Adam and gradient clipping by global norm.
 
-An optimizer holds references to parameter Tensors and updates ``p.data`` in place
-from ``p.grad``; its state (momenta) can be saved and restored for exact resumption.
+The optimizer holds references to parameter Tensors and updates ``p.data`` in place
+from ``p.grad``; its state (step count, moments) can be saved and restored for exact
+resumption.
 """
 from __future__ import annotations
 
@@ -12,8 +13,15 @@ import numpy as np
 from .engine import Tensor
 
 
-class Optimizer:
-    def __init__(self, params: Iterable[Tensor], lr: float):
+class Adam:
+    """Adam (Kingma & Ba 2015), at step t:
+
+        m <- b1 m + (1 - b1) g,   v <- b2 v + (1 - b2) g^2,
+        p <- p - lr * (m / (1 - b1^t)) / (sqrt(v / (1 - b2^t)) + eps).
+    """
+
+    def __init__(self, params: Iterable[Tensor], lr: float = 1e-3, betas=(0.9, 0.999),
+                 eps: float = 1e-8):
         self.params = list(params)
         if not self.params:
             raise ValueError("optimizer: params is empty; pass model.parameters()")
@@ -23,8 +31,13 @@ class Optimizer:
                                 f"{type(p).__name__}")
         if not lr > 0:
             raise ValueError(f"optimizer: lr must be positive; got {lr}")
-        self.lr = lr
+        b1, b2 = betas
+        if not (0 <= b1 < 1 and 0 <= b2 < 1):
+            raise ValueError(f"Adam: betas must be in [0, 1); got {betas}")
+        self.lr, self.b1, self.b2, self.eps = lr, b1, b2, eps
         self.step_count = 0
+        self.m = [np.zeros_like(p.data) for p in self.params]
+        self.v = [np.zeros_like(p.data) for p in self.params]
 
     def zero_grad(self) -> None:
         for p in self.params:
@@ -32,82 +45,28 @@ class Optimizer:
 
     def step(self) -> None:
         self.step_count += 1
-        for i, p in enumerate(self.params):
-            if p.grad is not None:
-                self._update(i, p, p.grad)
-
-    def _update(self, i: int, p: Tensor, g: np.ndarray) -> None:
-        raise NotImplementedError
+        t = self.step_count
+        for p, m, v in zip(self.params, self.m, self.v):
+            if p.grad is None:
+                continue
+            g = p.grad
+            m *= self.b1
+            m += (1 - self.b1) * g
+            v *= self.b2
+            v += (1 - self.b2) * (g * g)
+            m_hat_scale = 1 / (1 - self.b1 ** t)
+            v_hat_scale = 1 / (1 - self.b2 ** t)
+            p.data -= (self.lr * m_hat_scale) * m / (np.sqrt(v * v_hat_scale) + self.eps)
 
     # Saving and restoring (arrays only, so it fits in an .npz).
     def state_dict(self) -> dict[str, np.ndarray]:
-        return {"step_count": np.asarray(self.step_count)}
-
-    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
-        self.step_count = int(state["step_count"])
-
-
-class SGD(Optimizer):
-    """v <- momentum * v + g;  p <- p - lr * v  (plain SGD when momentum = 0)."""
-
-    def __init__(self, params, lr: float = 1e-2, momentum: float = 0.0):
-        super().__init__(params, lr)
-        if not 0 <= momentum < 1:
-            raise ValueError(f"SGD: momentum must be in [0, 1); got {momentum}")
-        self.momentum = momentum
-        self.velocity = [np.zeros_like(p.data) for p in self.params]
-
-    def _update(self, i, p, g):
-        v = self.velocity[i]
-        v *= self.momentum
-        v += g
-        p.data -= self.lr * v
-
-    def state_dict(self):
-        state = super().state_dict()
-        state.update({f"velocity.{i}": v for i, v in enumerate(self.velocity)})
-        return state
-
-    def load_state_dict(self, state):
-        super().load_state_dict(state)
-        for i, v in enumerate(self.velocity):
-            v[...] = state[f"velocity.{i}"]
-
-
-class Adam(Optimizer):
-    """Adam (Kingma & Ba 2015):
-
-        m <- b1 m + (1 - b1) g,   v <- b2 v + (1 - b2) g^2,
-        p <- p - lr * (m / (1 - b1^t)) / (sqrt(v / (1 - b2^t)) + eps).
-    """
-
-    def __init__(self, params, lr: float = 1e-3, betas=(0.9, 0.999), eps: float = 1e-8):
-        super().__init__(params, lr)
-        b1, b2 = betas
-        if not (0 <= b1 < 1 and 0 <= b2 < 1):
-            raise ValueError(f"Adam: betas must be in [0, 1); got {betas}")
-        self.b1, self.b2, self.eps = b1, b2, eps
-        self.m = [np.zeros_like(p.data) for p in self.params]
-        self.v = [np.zeros_like(p.data) for p in self.params]
-
-    def _update(self, i, p, g):
-        m, v, t = self.m[i], self.v[i], self.step_count
-        m *= self.b1
-        m += (1 - self.b1) * g
-        v *= self.b2
-        v += (1 - self.b2) * (g * g)
-        m_hat_scale = 1 / (1 - self.b1 ** t)
-        v_hat_scale = 1 / (1 - self.b2 ** t)
-        p.data -= (self.lr * m_hat_scale) * m / (np.sqrt(v * v_hat_scale) + self.eps)
-
-    def state_dict(self):
-        state = super().state_dict()
+        state = {"step_count": np.asarray(self.step_count)}
         state.update({f"m.{i}": m for i, m in enumerate(self.m)})
         state.update({f"v.{i}": v for i, v in enumerate(self.v)})
         return state
 
-    def load_state_dict(self, state):
-        super().load_state_dict(state)
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        self.step_count = int(state["step_count"])
         for i in range(len(self.params)):
             self.m[i][...] = state[f"m.{i}"]
             self.v[i][...] = state[f"v.{i}"]
@@ -131,6 +90,3 @@ def clip_grad_norm(params: Iterable[Tensor], max_norm: float) -> float:
         for g in grads:
             g *= scale
     return total
-
-
-__all__ = ["Optimizer", "SGD", "Adam", "clip_grad_norm"]

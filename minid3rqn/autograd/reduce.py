@@ -30,6 +30,3 @@ def log_softmax(x, axis: int = -1) -> Tensor:
         return (g - np.exp(y) * np.sum(g, axis=ax, keepdims=True),)
 
     return Tensor.from_op(y.astype(x.dtype, copy=False), (x,), vjp, "log_softmax")
-
-
-__all__ = ["log_softmax"]

@@ -6,9 +6,9 @@ Convention (shared with ``minid3rqn.world.geometry.inverse_warp_numpy``):
   column (horizontal, grows rightwards), ``y`` the row (vertical, grows downwards), both
   in PIXEL units.
 - Pixel centres sit at integer coordinates: ``(0, 0)`` is the centre of the top-left
-  pixel, ``(W-1, H-1)`` the centre of the bottom-right one. So ``pixel_grid(H, W)`` (the
-  identity grid) reproduces the image, and a grid shifted by +1 in x reads each pixel's
-  right-hand neighbour.
+  pixel, ``(W-1, H-1)`` the centre of the bottom-right one. So the identity grid
+  ``coords[n, v, u] = (u, v)`` reproduces the image, and a grid shifted by +1 in x reads
+  each pixel's right-hand neighbour.
 - This equals ``torch.nn.functional.grid_sample(image, grid, align_corners=True)`` with
   ``grid = 2 * coords / (size - 1) - 1`` (per axis: x with W, y with H).
 
@@ -38,18 +38,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .engine import FLOAT_DTYPES, Tensor, as_tensor, check_same_dtype
+from .engine import Tensor, check_same_dtype, float_tensor
 
 PADDING_MODES = ("zeros", "border")
-
-
-def pixel_grid(height: int, width: int, dtype=np.float32) -> np.ndarray:
-    """The identity sampling grid: (H, W, 2) with ``grid[v, u] = (u, v)`` = (x, y)."""
-    if int(height) < 1 or int(width) < 1:
-        raise ValueError(f"pixel_grid: height and width must be >= 1; got {height}, {width}")
-    ys, xs = np.meshgrid(np.arange(height, dtype=dtype), np.arange(width, dtype=dtype),
-                         indexing="ij")
-    return np.stack([xs, ys], axis=-1)
 
 
 def bilinear_sample(image, coords, padding_mode: str = "zeros") -> tuple[Tensor, np.ndarray]:
@@ -137,11 +128,7 @@ def _check_inputs(image, coords, padding_mode: str) -> tuple[Tensor, Tensor]:
     if padding_mode not in PADDING_MODES:
         raise ValueError(f"{op}: padding_mode must be one of {PADDING_MODES}; "
                          f"got {padding_mode!r}")
-    for name, value in (("image", image), ("coords", coords)):
-        if not isinstance(value, Tensor) and np.asarray(value).dtype not in FLOAT_DTYPES:
-            raise TypeError(f"{op}: {name} must hold float32 or float64 values; got dtype "
-                            f"{np.asarray(value).dtype}")
-    image, coords = as_tensor(image), as_tensor(coords)
+    image, coords = float_tensor(image, "image", op), float_tensor(coords, "coords", op)
     if image.ndim != 4:
         raise ValueError(f"{op}: image must be 4-D (N, C, H, W); got shape {image.shape}")
     if coords.ndim != 4 or coords.shape[-1] != 2:
@@ -154,6 +141,3 @@ def _check_inputs(image, coords, padding_mode: str) -> tuple[Tensor, Tensor]:
         raise ValueError(f"{op}: image must have H, W >= 1; got shape {image.shape}")
     check_same_dtype((image, coords), op)
     return image, coords
-
-
-__all__ = ["bilinear_sample", "pixel_grid"]

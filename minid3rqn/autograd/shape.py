@@ -1,7 +1,8 @@
-"""Ops that move entries without computing with them: concat, stack, pad, flatten.
+"""Ops that move entries without computing with them: concat, stack, pad, crop, flatten.
 
 Their gradients move ``g`` back the same way: split along the concatenated axis, take
-the slice of each stacked input, cut (or fold back) the padding. reshape, transpose and
+the slice of each stacked input, cut (or fold back) the padding, write the cropped
+part into zeros. reshape, transpose and
 getitem sit in engine.py, beside the Tensor whose methods call them.
 """
 from __future__ import annotations
@@ -89,10 +90,23 @@ def _add_slice(arr: np.ndarray, axis: int, i: int, value: np.ndarray) -> None:
     arr[tuple(index)] += value
 
 
+def crop(x, index) -> Tensor:
+    """y = x[index] for basic slices and ints only;  dL/dx = g written into zeros.
+
+    A faster twin of ``getitem`` for the many shifted slices of the losses and the
+    LSTM's outputs: basic slices read no entry twice, so plain assignment is exact.
+    """
+    x = as_tensor(x)
+
+    def vjp(g):
+        gx = np.zeros_like(x.data)
+        gx[index] = g
+        return (gx,)
+
+    return Tensor.from_op(np.ascontiguousarray(x.data[index]), (x,), vjp, "crop")
+
+
 def flatten(x, start_dim: int = 1) -> Tensor:
     """y = x with the axes from ``start_dim`` on merged into one."""
     x = as_tensor(x)
     return reshape(x, x.shape[:start_dim] + (-1,))
-
-
-__all__ = ["concat", "stack", "pad", "flatten"]

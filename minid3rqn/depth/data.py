@@ -29,7 +29,12 @@ import numpy as np
 
 from ..config import as_dict, at_least, between, command_line, setting, validate
 from ..io import load_npz, save_npz
-from ..world.scenarios import SCENARIOS
+from ..world.camera import Camera
+from ..world.distance import nearest_distance, sample_start_pose
+from ..world.kinematics import integrate_arc
+from ..world.renderer import render_batch
+from ..world.scenarios import SCENARIOS, make_scene
+from .geometry import check_intrinsics
 
 SPEED = 2.0          # m/s, the paper's forward speed
 FRAME_DT = 0.4       # s between frames (paper, Table 2)
@@ -67,7 +72,6 @@ def held_out(cfg: CollectConfig, frames: int = TEST_FRAMES) -> CollectConfig:
 # -- the scripted pilot ----------------------------------------------------------------
 def _arc_points(pose, yaw_rate, horizon: float, n: int) -> np.ndarray:
     """Positions (n, 2) along an arc flown from ``pose`` at SPEED for ``horizon`` s."""
-    from ..world.kinematics import integrate_arc
     taus = np.linspace(horizon / n, horizon, n)
     return integrate_arc(np.asarray(pose)[None], SPEED, yaw_rate, taus)[:, :2]
 
@@ -83,10 +87,9 @@ class ScriptedPilot:
 
     ``late``: the share of those few-step segments flown as a *late turner*: straight
     ahead, looking only ``late_horizon`` s (a random 1.0-1.6 s, 2-3 m) ahead with a
-    ``late_margin`` of 0.7 m, so it swerves only when an obstacle is close. A careful
-    pilot (``late`` = 0) turns away 5 m early, and its frames almost never show an
-    obstacle 1-2 m straight ahead, the view a Q-net must judge before a crash
-    (docs/depth.md, "Where the near pixels are").
+    ``late_margin`` of 0.7 m, so it swerves only when an obstacle is close; the careful
+    pilot (``late`` = 0) rarely films an obstacle 1-2 m straight ahead (docs/depth.md,
+    "Where the near pixels are").
     """
 
     def __init__(self, scene, rng: np.random.Generator, margin: float = 1.0,
@@ -101,7 +104,6 @@ class ScriptedPilot:
         self.segment = (margin, horizon)          # (margin, horizon) of this segment
 
     def __call__(self, pose) -> float:
-        from ..world.distance import nearest_distance
         if self.hold <= 0:
             self.preferred = float(self.rng.choice([-0.5, -0.25, 0.0, 0.0, 0.25, 0.5]))
             self.hold = int(self.rng.integers(2, 8))
@@ -123,20 +125,11 @@ class ScriptedPilot:
 
 
 # -- collection ------------------------------------------------------------------------
-def _render(scene, poses, camera):
-    """(F, 3) poses -> rgb (F, H, W, 3) uint8, depth (F, H, W) float32 via the world."""
-    from ..world import render_batch
-    rgb, depth = render_batch(scene, np.asarray(poses), camera)
-    return np.asarray(rgb, dtype=np.uint8), np.asarray(depth, dtype=np.float32)
-
-
 def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0,
         frame_dt: float = FRAME_DT) -> np.ndarray:
     """One scripted flight of up to ``n_frames`` camera poses (fewer if it comes too
     close); ``late``: the pilot's share of late-turn segments (``ScriptedPilot``);
     ``frame_dt``: seconds between frames (the pilot decides at every frame)."""
-    from ..world.distance import nearest_distance, sample_start_pose
-    from ..world.kinematics import integrate_arc
     pilot = ScriptedPilot(scene, rng, late=late)
     poses = [sample_start_pose(scene, rng)]
     while len(poses) < n_frames:
@@ -158,14 +151,10 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
     than 3 frames (no triplet) are dropped, so when the last 1-2 frames cannot make a
     flight of their own the sequence ends up to 2 frames short of ``n_frames``. Returns
     the arrays of a sequence file. ``late``: the pilot's share of late-turn segments
-    (``ScriptedPilot``; 0, the default, is the careful pilot). ``frame_dt``: seconds
-    between frames (paper: 0.4 s; a camera films faster than the pilot decides, and
-    a shorter step means smaller image motion for view synthesis).
+    (``ScriptedPilot``). ``frame_dt``: seconds between frames (paper: 0.4 s).
     """
     if not 0.0 < frame_dt <= 2.0:
         raise ValueError(f"collect: frame_dt must be in (0, 2] s; got {frame_dt}")
-    from ..world.camera import Camera
-    from ..world.scenarios import make_scene
     if n_frames < 3:
         raise ValueError(f"collect: n_frames must be >= 3 (one triplet); got {n_frames}")
     if frames_per_flight < 3:
@@ -184,7 +173,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         f += 1
         if len(poses) < 3:
             continue
-        im, dp = _render(scene, poses, camera)
+        im, dp = render_batch(scene, poses, camera)
         rgb.append(im), depth.append(dp), pose.append(poses)
         flight.append(np.full(len(poses), len(flight), dtype=np.int32))
         total += len(poses)
@@ -234,7 +223,6 @@ class Sequence:
         if self.flight.shape != (n,):
             raise ValueError(f"Sequence: flight must be ({n},), one id per frame; got "
                              f"{self.flight.shape}")
-        from .geometry import check_intrinsics
         self.K = check_intrinsics(self.K, self.rgb.shape[1], self.rgb.shape[2], "Sequence: K")
         for name in ("depth", "pose"):
             value = getattr(self, name)
@@ -313,8 +301,3 @@ def load_sequence(path) -> Sequence:
                            f"`python -m minid3rqn collect`")
     return Sequence(arrays["rgb"], arrays["flight"], arrays["K"], arrays.get("depth"),
                     arrays.get("pose"), meta)
-
-
-__all__ = ["SPEED", "FRAME_DT", "TEST_SEED_OFFSET", "CollectConfig", "held_out",
-           "ScriptedPilot", "fly", "collect", "collect_sequence", "save_sequence",
-           "Sequence", "triplet_indices", "load_sequence"]

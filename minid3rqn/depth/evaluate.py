@@ -36,29 +36,23 @@ METRICS = ("abs_rel", "sq_rel", "rmse", "rmse_log", "a1", "a2", "a3")
 class DepthEstimator:
     """Monocular depth for the RL agent: RGB frames in, depth maps (metres) out.
 
-    Scale convention: monocular depth is known only up to a global scale. This
-    estimator fixes it once, at training time, from the drone's known forward speed
-    (0.8 m between frames, see ``train.speed_scale``), so ``predict`` returns depth in
-    approximately metres: depth = scale / disp. The scale is a constant of the model
-    file, the same for every frame, so depth maps from one model are comparable across
-    frames and episodes. Consumers that want a unit-free input can divide by a fixed
-    constant (e.g. 10 m); do not normalise per frame, which would throw away the
-    absolute nearness that obstacle avoidance needs.
+    Scale: monocular depth is known only up to a global scale. This estimator fixes it
+    once, at training time, from the drone's known forward speed (0.8 m between frames,
+    ``train.speed_scale``), so ``predict`` returns depth = scale / disp in about metres,
+    the same scale for every frame (not normalised per frame, which would throw away
+    the absolute nearness that obstacle avoidance needs).
 
     Inference runs on a snapshot of the network's weights, taken at the first
-    ``predict`` (the graph-free ``DispNetInference``); call ``refresh()`` if the network
-    is trained further while the estimator is kept.
+    ``predict`` (``DispNetInference``): build a new estimator after training further.
 
     Args:
         dispnet: a trained DispNet.
         scale: metres per unit of 1 / disp.
         meta: free-form metadata (command, seed, results) from the model file.
-        flip: test-time flip averaging (monodepth's post-processing, in its plain form):
-            the disparity is the mean of the network's disparity for the frame and,
-            flipped back, for the frame mirrored left-right. A left-right mirror of a
-            world is as likely as the world, so the network's errors on the two views
-            are partly independent and the mean is closer to the truth. Twice the
-            inference cost; off by default, and not used in training.
+        flip: test-time flip averaging (monodepth's post-processing): the disparity is
+            the mean of the network's disparity for the frame and, flipped back, for the
+            frame mirrored left-right (a mirrored world is as likely as the world, so
+            the errors on the two views are partly independent). Twice the cost.
     """
 
     def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None,
@@ -92,20 +86,11 @@ class DepthEstimator:
                              f"(no 'dispnet' metadata); write one with train-depth")
         c = meta["dispnet"]
         net = DispNet(tuple(c["encoder"]), tuple(c["decoder"]), c["n_scales"],
-                      c["disp_scale"], c["min_disp"], c.get("double_conv", True))
+                      c["disp_scale"], c["min_disp"])
         net.load_state_dict(arrays)
         return cls(net, meta.get("scale", 1.0), meta, flip)
 
     # -- inference -------------------------------------------------------------------
-    # ``predict`` runs ``DispNetInference`` (nets/fast.py): a graph-free copy of the
-    # network's weights, plain NumPy, finest scale only, the same convolution routine as
-    # the autograd path; ~2.5x faster at batch 1 (the flight loop), ~2x on batches.
-    # Training, and anything that needs gradients, uses ``self.net`` (DispNet.forward).
-    def refresh(self) -> None:
-        """Re-read the network's weights on the next ``predict`` (after changing them:
-        ``predict`` works on a snapshot taken at its first call)."""
-        self._fast = None
-
     def _frames(self, rgb) -> tuple[np.ndarray, bool]:
         """rgb as checked uint8 (N, H, W, 3), and whether it was a single (H, W, 3)."""
         rgb = np.asarray(rgb)
@@ -124,10 +109,10 @@ class DepthEstimator:
     def predict_disp(self, rgb) -> np.ndarray:
         """rgb uint8 (N, H, W, 3) or (H, W, 3) -> network disparity (N, H, W) float32.
 
-        Equal (to float32 round-off) to ``predict_disp_autograd``, the autograd forward
-        ``net(rgb as (N, 3, H, W) float32 / 255, scales=1)[0]``; computed by the
-        graph-free ``DispNetInference``. With ``flip``: the mean of that and its value on
-        the mirrored frames, mirrored back.
+        Equal (to float32 round-off) to the autograd forward ``net(rgb as (N, 3, H, W)
+        float32 / 255, scales=1)[0]``; computed by the graph-free ``DispNetInference``.
+        With ``flip``: the mean of that and its value on the mirrored frames, mirrored
+        back.
         """
         rgb, single = self._frames(rgb)
         if self._fast is None:
@@ -136,17 +121,6 @@ class DepthEstimator:
         if self.flip:
             mirrored = self._fast(np.ascontiguousarray(rgb[:, :, ::-1]))
             out = 0.5 * (out + mirrored[:, :, ::-1].astype(np.float32, copy=False))
-        return out[0] if single else out
-
-    def predict_disp_autograd(self, rgb, batch_size: int = 64) -> np.ndarray:
-        """``predict_disp`` through the autograd forward (``DispNet.forward`` under
-        ``no_grad``): the reference for tests and benchmarks."""
-        rgb, single = self._frames(rgb)
-        out = np.empty(rgb.shape[:3], dtype=np.float32)
-        with ag.no_grad():
-            for k in range(0, len(rgb), batch_size):
-                x = rgb[k:k + batch_size].transpose(0, 3, 1, 2).astype(np.float32) * (1 / 255.0)
-                out[k:k + batch_size] = self.net(x, scales=1)[0].data[:, 0]
         return out[0] if single else out
 
     def predict(self, rgb) -> np.ndarray:
@@ -228,9 +202,7 @@ def log_error_parts(depth, estimate, clip=Q_NET_RANGE) -> dict:
     a the frame's mean, b the column means of e - a, c the row means of e - a - b, and
     r the rest. Returns the std of e and of each part (pixels weighted alike), and the
     mean of e. Both depths are clipped to ``clip`` first (0.5 to 10 m, the range a
-    Q-net reads). Used for the DispNet's error in flight
-    (examples/07_which_depth_errors_matter.py) and for a student's corruption
-    (classroom exercise 8)."""
+    Q-net reads)."""
     lo, hi = clip
     e = np.log(np.clip(np.asarray(estimate, np.float64), lo, hi) /
                np.clip(np.asarray(depth, np.float64), lo, hi))
@@ -351,8 +323,3 @@ class LearningCurve:
                    "held-out delta<1.25": (its, [rw["a1"] for rw in self.rows])},
                   self.png, title="train-depth: held-out depth quality (200 frames)",
                   xlabel="iteration", ylim=(0.0, 1.0))
-
-
-__all__ = ["METRICS", "DepthEstimator", "align_to_gt", "depth_metrics", "errors_by_depth",
-           "log_error_parts", "pose_errors", "evaluate", "comparison_picture",
-           "LearningCurve"]

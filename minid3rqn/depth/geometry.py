@@ -27,11 +27,12 @@ from .. import autograd as ag
 from ..autograd import Tensor
 from ..autograd.engine import as_tensor
 from ..autograd.sample import bilinear_sample
+from ..autograd.shape import crop
 
 Z_EPS = 1e-3     # the world's convention: a point is in front of a camera iff z > Z_EPS
 
 
-# -- two small ops the autograd package does not have ---------------------------------
+# -- two small ops the autograd package does not have -------------------------------
 def sin(x) -> Tensor:
     """y = sin x;  dy/dx = cos x."""
     x = as_tensor(x)
@@ -42,23 +43,6 @@ def cos(x) -> Tensor:
     """y = cos x;  dy/dx = -sin x."""
     x = as_tensor(x)
     return Tensor.from_op(np.cos(x.data), (x,), lambda g: (-g * np.sin(x.data),), "cos")
-
-
-def crop(x, index) -> Tensor:
-    """y = x[index] for basic slices only; dL/dx = g written into zeros (no np.add.at).
-
-    A faster twin of ``ag.getitem`` for the many shifted slices of the smoothness and
-    SSIM terms: with slices no entry is read twice, so plain assignment is exact.
-    """
-    x = as_tensor(x)
-    y = x.data[index]
-
-    def vjp(g):
-        gx = np.zeros_like(x.data)
-        gx[index] = g
-        return (gx,)
-
-    return Tensor.from_op(np.ascontiguousarray(y), (x,), vjp, "crop")
 
 
 # -- pose ------------------------------------------------------------------------------
@@ -137,7 +121,7 @@ def check_intrinsics(K, height: int, width: int, name: str = "K") -> np.ndarray:
             f"{name} does not match the image size {height}x{width}: its principal point is "
             f"(cx, cy) = ({K[0, 2]:g}, {K[1, 2]:g}) but an image of that size has its middle "
             f"column at cx = {cx:g} and its rows in [0, {height - 1}]. Scale K with the image "
-            f"(see Camera.scaled / scale_intrinsics).")
+            f"(see scale_intrinsics).")
     return K
 
 
@@ -211,8 +195,3 @@ def inverse_warp(src, depth, T_tgt_to_src, K, padding: str = "zeros"):
     if padding == "zeros":
         warped = warped * valid
     return warped, valid
-
-
-__all__ = ["Z_EPS", "sin", "cos", "crop", "euler_to_matrix", "pose_vec_to_mat",
-           "matrix_to_pose_vec", "check_intrinsics", "scale_intrinsics", "pixel_rays",
-           "inverse_warp"]

@@ -53,9 +53,10 @@ import numpy as np
 from .. import autograd as ag
 from ..autograd import Tensor
 from ..autograd.conv import upsample
+from ..autograd.shape import crop
 from ..config import at_least, between, setting, validate
 from .data import FRAME_DT, SPEED
-from .geometry import crop, inverse_warp, pose_vec_to_mat, scale_intrinsics
+from .geometry import inverse_warp, pose_vec_to_mat, scale_intrinsics
 
 
 # -- the paper: Eq. 2 and Eq. 3 -----------------------------------------------------------
@@ -286,7 +287,3 @@ def _mean(terms: list) -> Tensor:
     for term in terms[1:]:
         total = total + term
     return total * (1.0 / len(terms))
-
-__all__ = ["l1_error", "reconstruction_errors", "LossConfig", "box3", "ssim_dissimilarity",
-           "photometric_error", "configured_error", "masked_minimum", "downsample_image",
-           "smoothness_loss", "at_scale", "speed_loss", "view_synthesis_loss"]

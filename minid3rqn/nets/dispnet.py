@@ -44,14 +44,13 @@ class DispNet(Module):
         decoder: channels of the decoder levels, same length, finest first.
         n_scales: disparity outputs at decoder levels 0..n_scales-1.
         disp_scale, min_disp: a and b in disp = a sigmoid(z) + b.
-        double_conv: two convs per encoder level (True) or one.
         init_disp: the disparity every head starts near (its bias is set to
             logit((init_disp - b) / a)); None keeps the default init (disp ~ a/2 + b).
         rng: seed or np.random.Generator for the initial weights.
     """
 
     def __init__(self, encoder=(16, 32, 64, 96), decoder=(16, 16, 32, 64), n_scales: int = 4,
-                 disp_scale: float = 10.0, min_disp: float = 0.01, double_conv: bool = True,
+                 disp_scale: float = 10.0, min_disp: float = 0.01,
                  init_disp: float | None = 0.5, rng=0, dtype=np.float32):
         rng = as_rng(rng)
         if len(encoder) != len(decoder):
@@ -64,8 +63,7 @@ class DispNet(Module):
         self.enc_a, self.enc_b, c_in = [], [], 3
         for c in encoder:
             self.enc_a.append(Conv2d(c_in, c, 3, stride=2, padding=1, rng=rng, dtype=dtype))
-            if double_conv:
-                self.enc_b.append(Conv2d(c, c, 3, stride=1, padding=1, rng=rng, dtype=dtype))
+            self.enc_b.append(Conv2d(c, c, 3, stride=1, padding=1, rng=rng, dtype=dtype))
             c_in = c
         self.dec_a, self.dec_b, self.heads = [], [], []
         levels = len(encoder)
@@ -88,7 +86,7 @@ class DispNet(Module):
     def config(self) -> dict:
         return {"encoder": list(self.encoder_channels), "decoder": list(self.decoder_channels),
                 "n_scales": self.n_scales, "disp_scale": self.disp_scale,
-                "min_disp": self.min_disp, "double_conv": bool(self.enc_b)}
+                "min_disp": self.min_disp}
 
     def forward(self, rgb, scales: int | None = None) -> list[Tensor]:
         """rgb (N, 3, H, W) float in [0, 1] -> [disp_0 (N,1,H,W), disp_1 (N,1,H/2,W/2), ...].
@@ -101,10 +99,9 @@ class DispNet(Module):
         h, w = x.shape[2:]
         x = (x - RGB_MEAN) * (1.0 / RGB_STD)
         feats = []
-        for i, conv in enumerate(self.enc_a):
-            x = ag.elu(conv(x))
-            if self.enc_b:
-                x = ag.elu(self.enc_b[i](x))
+        for conv_a, conv_b in zip(self.enc_a, self.enc_b):
+            x = ag.elu(conv_a(x))
+            x = ag.elu(conv_b(x))
             feats.append(x)
         levels = len(self.enc_a)
         n_out = self.n_scales if scales is None else max(1, min(int(scales), self.n_scales))
@@ -120,6 +117,3 @@ class DispNet(Module):
             if i < n_out:
                 disps[i] = ag.sigmoid(self.heads[i](x)) * self.disp_scale + self.min_disp
         return disps[:n_out]
-
-
-__all__ = ["DispNet"]

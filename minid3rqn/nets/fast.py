@@ -1,16 +1,14 @@
 """The graph-free inference paths: allocation-aware copies of the networks' ``forward``.
 
-The networks a student reads (``nets/qnet.py``, ``nets/dispnet.py``, ``nets/layers.py``)
-each compute their output one way, ``forward``, through the autograd ops: training
-needs the graph those ops record. Acting and depth inference do not, and they run the
-networks once per frame of every flight: at batch 1 the graph's bookkeeping (Tensor
-wrappers, argument checks, the weights re-laid out as matrices on every call, NCHW <->
-channels-last copies, a backward closure per op) cost as much as the arithmetic. This
-module holds copies of those ``forward`` passes on plain arrays, with buffers allocated
-once and reused, kept apart from the teaching code as minitorch keeps its ``fast_ops``
-apart from its plain ops. They call the same convolution routine
-(``autograd.conv.conv2d_nhwc``) and keep the same order of operations wherever they can;
-tests/test_fast_inference.py keeps them equal to ``forward``.
+The networks a student reads (``nets/qnet.py``, ``nets/dispnet.py``) compute their
+output one way, ``forward``, through the autograd ops: training needs the graph those
+ops record. Acting and depth inference do not, and at batch 1 the graph's bookkeeping
+(Tensor wrappers, argument checks, weights re-laid out on every call, NCHW <->
+channels-last copies) cost as much as the arithmetic. This module holds copies of those
+``forward`` passes on plain arrays, with buffers allocated once, kept apart from the
+teaching code as minitorch keeps its ``fast_ops``. They call the same convolution
+routine (``autograd.conv.conv2d_nhwc``) and keep the same order of operations wherever
+they can; tests/test_fast_inference.py keeps them equal to ``forward``.
 
     ConvInference          one convolution, its weights laid out once (channels-last)
     upsample_conv_phases   "nearest upsample x2, conv 3x3" as four 2x2 convolutions
@@ -19,9 +17,6 @@ tests/test_fast_inference.py keeps them equal to ``forward``.
                            current weights on every call
     DispNetInference       ``DispNet.forward(x, scales=1)[0]`` on a snapshot of the weights,
                            channels-last, into preallocated buffers
-
-Training always goes through the networks' ``forward``; these only *evaluate* a network
-faster.
 """
 from __future__ import annotations
 
@@ -44,25 +39,15 @@ class ConvInference:
     autograd graph. ``ConvInference(conv2d_layer)`` or ``ConvInference.of(weight, bias,
     stride, padding)``; call it, or ``bind`` it to fixed buffers.
 
-    Why it exists: ``ag.conv2d`` checks its arguments, lays the weight out as a matrix,
-    wraps the result in a Tensor and keeps a closure for the backward pass, on every
-    call. Training needs the backward pass; inference (the DispNet in the flight loop,
-    one frame at a time) does not, and at batch 1 that bookkeeping plus the NCHW <->
-    channels-last copies cost as much as the arithmetic. This object does the weight
-    layout once and then runs what ``ag.conv2d``'s forward runs,
-    ``autograd.conv.conv2d_nhwc`` (im2col + GEMM, through its ``conv2d_nhwc_plan``), so
-    the two paths share one implementation of the convolution and give the same
-    numbers, to the last bit.
-
+    The weight is laid out once; the call runs what ``ag.conv2d``'s forward runs,
+    ``autograd.conv.conv2d_nhwc``, so the two give the same numbers, to the last bit.
     One exception, for layers with very few output channels (KH*KW*C_out <= C_in, stride
-    1: a disparity head, C_out = 1): im2col would copy KH*KW values per input value
-    for a GEMM that does almost nothing with them. There the channels are contracted
-    first, ``P[t] = xp @ w[:, :, t]`` for each kernel tap t (one small GEMM, no copy),
-    and the output is the sum of the KH*KW tap images shifted by their offsets. Same
-    products, summed in another order: equal to float round-off, not to the bit.
+    1: a disparity head): the channels are contracted first, ``P[t] = xp @ w[:, :, t]``
+    for each kernel tap t (one small GEMM, no im2col), and the output is the sum of the
+    KH*KW tap images shifted by their offsets: the same products summed in another
+    order, equal to float round-off, not to the bit.
 
-    It is a *snapshot*: later changes to the layer's weights (an optimizer step,
-    ``load_state_dict``) are not seen; build a new one.
+    A *snapshot*: later changes to the layer's weights are not seen; build a new one.
 
     Call: ``xp`` (N, H + 2 p_h, W + 2 p_w, C) the input, channels-last and already
     zero-padded -> (N, OH, OW, C_out) without the bias (see ``bias_elu_``); ``out`` and
@@ -125,9 +110,8 @@ class ConvInference:
 
     def bind(self, xp: np.ndarray, out: np.ndarray, work: np.ndarray):
         """A function of no arguments that computes this layer from ``xp`` into ``out``
-        (no bias), with every strided view prepared now: for buffers that are reused
-        call after call (``DispNetInference``), where re-deriving the views each time
-        would cost more than the arithmetic of the small layers at batch 1."""
+        (no bias), with every strided view prepared now, for buffers reused call after
+        call (``DispNetInference``)."""
         (ph, pw) = self.padding
         hw = self.out_hw(xp.shape[1] - 2 * ph, xp.shape[2] - 2 * pw)
         if not self.contract_first:
@@ -186,27 +170,15 @@ def upsample_conv_phases(weight: np.ndarray) -> dict:
 def bias_elu_(y: np.ndarray, bias, scratch: np.ndarray, zeros: np.ndarray) -> np.ndarray:
     """In place: ``y <- ELU(y + bias)`` (alpha = 1), as ``max(x, 0) + (exp(min(x, 0)) - 1)``.
 
-    ``ag.elu`` (training) computes ``where(x > 0, x, expm1(min(x, 0)))``. Here ``expm1``
-    is replaced by ``exp(.) - 1``, for speed: NumPy runs ``exp`` with SIMD instructions
-    on any x86-64 CPU of the last decade, but ``expm1`` only where AVX-512 is present
-    (through Intel's SVML); elsewhere it calls the C library once per element. On an
-    AVX2 machine (AMD EPYC) that is 11.0 ns against 1.9 ns per float32, and this
-    function was more than half of the DispNet's inference time
-    (``python benchmarks/bench_dispnet_chunk.py --elu``).
+    ``ag.elu`` (training) computes ``where(x > 0, x, expm1(min(x, 0)))``; NumPy
+    vectorizes ``exp`` on any x86-64 CPU but ``expm1`` only with AVX-512
+    (``benchmarks/bench_dispnet_chunk.py --elu``). For x > 0 the result is x to the bit;
+    for x <= 0, ``exp(x) - 1`` is exact when exp(x) >= 1/2 (Sterbenz), so the error is
+    ``exp``'s rounding, at most about 1.2e-7 absolute in float32.
 
-    What that costs in accuracy: for x > 0 nothing (the second term is exactly 0, so
-    y = x to the bit, as in ``ag.elu``). For x <= 0, ``exp(x)`` lies in (0, 1] and
-    ``exp(x) - 1`` is computed exactly when exp(x) >= 1/2 (Sterbenz), so the error is
-    ``exp``'s rounding, at most about one unit in the last place of 1.0 (1.2e-7 in
-    float32) in absolute terms; ``expm1`` would be accurate relative to the (tiny)
-    result near 0, which a network does not need. The DispNet's disparity moves by
-    about 1e-6 relative (tests/test_fast_inference.py bounds it), the order of the
-    round-off this inference path already differs by (``DispNetInference``'s
-    docstring).
-
-    No ``np.where`` (slow) and no allocation: ``scratch`` and ``zeros`` are arrays of
-    ``y``'s shape and dtype (``zeros`` all zeros: NumPy's SIMD min/max loops want two
-    contiguous operands; a scalar 0 is ~2.5x slower).
+    No ``np.where`` and no allocation: ``scratch`` and ``zeros`` are arrays of ``y``'s
+    shape and dtype (``zeros`` all zeros: NumPy's SIMD min/max loops want two
+    contiguous operands).
     """
     if bias is not None:
         y += bias
@@ -223,8 +195,7 @@ def qnet_step(net: QNet, obs, state=None):
     """``net.step(obs, state)``: one time step, obs (B, C, H, W) -> (Q (B, n_actions),
     new state), for acting (the policies, the agent's epsilon-greedy steps).
 
-    Under ``no_grad`` this runs ``_qnet_step_arrays``, the same computation without
-    building a graph; with gradients on, ``net.step`` (that is, ``forward``).
+    Under ``no_grad`` this runs ``_qnet_step_arrays``; with gradients on, ``net.step``.
     """
     obs = obs.data if isinstance(obs, Tensor) else np.asarray(obs)
     if not ag.is_grad_enabled() and _arrays_ok(net, obs, state):
@@ -249,11 +220,8 @@ def _arrays_ok(net: QNet, obs: np.ndarray, state) -> bool:
 def _qnet_step_arrays(net: QNet, obs: np.ndarray, state):
     """``net.step`` on plain arrays: the operations of ``QNet.forward`` (T = 1), in the
     same order and with the same routines (``conv2d_nhwc`` through ``ConvInference``,
-    the LSTM's ``_gates``), so Q and the state come out the same, to the bit, but
-    without Tensor wrappers, argument checks and backward closures, which at batch 1
-    cost more than the arithmetic (the whole framework runs this once per frame).
-    Reads the current weights on every call: nothing is cached, so it is safe
-    while the network trains."""
+    the LSTM's ``_gates``), so Q and the state come out the same, to the bit. Reads the
+    current weights on every call, so it is safe while the network trains."""
     B = obs.shape[0]
     x = np.ascontiguousarray(obs.transpose(0, 2, 3, 1))        # channels-last
     for conv in net.convs:
@@ -302,23 +270,15 @@ def _linear(x: np.ndarray, layer: Linear) -> np.ndarray:
 class DispNetInference:
     """``DispNet.forward(x, scales=1)[0]`` without autograd: a snapshot for inference.
 
-    Why: training needs the graph (``DispNet.forward``); inference does not, and in the
-    flight loop (one frame per step, batch 1) the per-op overhead of the graph (Tensor
-    wrappers, argument checks, the weights re-laid out as matrices on every call,
-    NCHW <-> channels-last copies, ``np.where`` in ELU) was as large as the arithmetic.
-    This class does the same computation with the same convolution routine
-    (``ConvInference`` -> ``autograd.conv.conv2d_nhwc``), but
+    The same computation with the same convolution routine (``ConvInference`` ->
+    ``autograd.conv.conv2d_nhwc``), but
 
     - keeps activations channels-last (N, H, W, C) from input to output;
     - writes each layer's result straight into the zero-padded input buffer of the
       layer that reads it (in the decoder: upsampled into the first channels, the
       encoder's skip features into the last ones, so "upsample, crop, concat, pad" is
       a few strided copies); the buffers are allocated once per batch size;
-    - applies bias + ELU in place (``bias_elu_``), with ``exp(x) - 1`` for the
-      negative side where ``ag.elu`` has ``expm1(x)``: NumPy vectorizes ``exp`` on
-      every x86-64 CPU but ``expm1`` only with AVX-512, and without it the ELU cost more
-      than all the convolutions (on an AMD EPYC: 3.62 ms a frame, 1.53 without the
-      ELU; ``benchmarks/bench_dispnet_chunk.py --elu``);
+    - applies bias + ELU in place (``bias_elu_``, ``exp(x) - 1`` for ``expm1(x)``);
     - computes only the finest disparity head, the one inference uses;
     - at a decoder level without skip features and without cropping (the finest one,
       the largest layer), runs "upsample x2, conv 3x3" as four 2x2 convolutions of
@@ -326,20 +286,15 @@ class DispNetInference:
       head by contracting channels first (``ConvInference``).
 
     The last two sum the same products in another order, and the ELU rounds its
-    negative side differently (by at most about 1.2e-7 in float32), so the output
-    equals ``forward`` to float round-off (about 1e-6 relative in float32), not to the
-    bit; everything else is the same arithmetic in the same order.
+    negative side differently, so the output equals ``forward`` to float round-off
+    (about 1e-6 relative in float32), not to the bit.
 
-    Large batches run ``chunk`` frames at a time, so that the working set (about
-    1 MB of buffers per frame at 32x104) stays in the CPU caches; a batch gains
-    little over single frames anyway (the GEMMs are already efficient at batch 1).
-    How little: chunks of 2 to 64 frames run within 3% of each other on a 16 MB-L3
-    AMD EPYC (``benchmarks/bench_dispnet_chunk.py``); the chunk changes the last bit of
-    some outputs (the GEMMs' row counts change), so the default stays 8.
+    Large batches run ``chunk`` frames at a time, so that the working set (about 1 MB
+    of buffers per frame at 32x104) stays in the CPU caches; the chunk changes the last
+    bit of some outputs (the GEMMs' row counts change), so the default stays 8.
 
-    A snapshot: weights changed after construction (training) are not seen; build a
-    new one, ``DispNetInference(net)``. Not thread-safe (the buffers are shared): one
-    instance per thread.
+    A snapshot: weights changed after construction are not seen. Not thread-safe (the
+    buffers are shared): one instance per thread.
     """
 
     def __init__(self, net: DispNet, chunk: int = 8):
@@ -393,14 +348,13 @@ class DispNetInference:
             convs.append((level, name, layer, xp, y))
             return y
 
-        x = first = padded(h, w, self.enc_a[0].in_channels)
+        x = first = padded(h, w, 3)
         enc = []
-        for lvl, conv_a in enumerate(self.enc_a):
+        for conv_a, conv_b in zip(self.enc_a, self.enc_b):
             level = {}
             y = conv(level, "a", conv_a, x)
-            if self.enc_b:
-                level["xb"] = padded(*y.shape[1:])
-                y = conv(level, "b", self.enc_b[lvl], level["xb"])
+            level["xb"] = padded(*y.shape[1:])
+            y = conv(level, "b", conv_b, level["xb"])
             x = level["x_next"] = padded(*y.shape[1:])    # the next conv's input
             enc.append(level)
         dec = []
@@ -441,13 +395,10 @@ class DispNetInference:
     # -- the forward pass ----------------------------------------------------------------
     def __call__(self, rgb: np.ndarray) -> np.ndarray:
         """rgb (N, H, W, 3) channels-last, uint8 (0..255) or float in [0, 1] ->
-        disparity (N, H, W) at the finest scale (the network's dtype). A two-frame
-        DispNet reads (N, H, W, 6): the frame's channels, then the previous frame's; a
-        DispNet with a cost volume reads its D planes after them (float input)."""
+        disparity (N, H, W) at the finest scale (the network's dtype)."""
         rgb = np.asarray(rgb)
-        c = self.enc_a[0].in_channels
-        if rgb.ndim != 4 or rgb.shape[-1] != c:
-            raise ValueError(f"DispNetInference: rgb must be (N, H, W, {c}); got {rgb.shape}")
+        if rgb.ndim != 4 or rgb.shape[-1] != 3:
+            raise ValueError(f"DispNetInference: rgb must be (N, H, W, 3); got {rgb.shape}")
         out = np.empty(rgb.shape[:3], self.dtype)
         for k in range(0, len(rgb), self.chunk):
             self._forward(rgb[k:k + self.chunk], out[k:k + self.chunk])
@@ -468,10 +419,8 @@ class DispNetInference:
         inner *= dt.type(1.0 / RGB_STD)
         levels, dec = len(self.enc_a), ws["dec"]
         for lvl, level in enumerate(ws["enc"]):           # conv s2 + ELU, conv + ELU
-            y = level["a"]()
-            if "b" in level:
-                level["xb"][:, 1:-1, 1:-1] = y
-                y = level["b"]()
+            level["xb"][:, 1:-1, 1:-1] = level["a"]()
+            y = level["b"]()
             level["x_next"][:, 1:-1, 1:-1] = y            # the next conv's padded input
             if lvl < levels - 1:         # skip features, read by decoder level lvl + 1:
                 skip_in = dec[levels - 2 - lvl]["xb"]     # the last channels of its input
@@ -512,7 +461,3 @@ def _with_bias_elu(run, bias, y, scratch, zeros):
 def _like(buf: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The first y.size elements of the flat ``buf``, shaped like ``y``."""
     return buf[:y.size].reshape(y.shape)
-
-
-__all__ = ["ConvInference", "upsample_conv_phases", "bias_elu_", "qnet_step",
-           "DispNetInference"]

@@ -25,9 +25,3 @@ def kaiming_uniform(shape, fan_in: int, rng, dtype=np.float32) -> np.ndarray:
     """U(-b, b) with b = sqrt(6 / fan_in): keeps activations' variance through ReLUs."""
     bound = np.sqrt(6.0 / fan_in)
     return as_rng(rng).uniform(-bound, bound, size=shape).astype(dtype)
-
-
-def xavier_uniform(shape, fan_in: int, fan_out: int, rng, dtype=np.float32) -> np.ndarray:
-    """U(-b, b) with b = sqrt(6 / (fan_in + fan_out)) (Glorot & Bengio 2010)."""
-    bound = np.sqrt(6.0 / (fan_in + fan_out))
-    return as_rng(rng).uniform(-bound, bound, size=shape).astype(dtype)

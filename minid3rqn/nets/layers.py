@@ -1,4 +1,4 @@
-"""Layers: Linear, Conv2d, LSTM, Sequential and parameter-free activations.
+"""Layers: Linear, Conv2d, LSTM, Sequential and two parameter-free activations.
 
 Every layer takes ``rng`` (a seed or ``np.random.Generator``) for its initial weights,
 so the same seed builds the same network.
@@ -122,18 +122,6 @@ class ReLU(Module):
         return ag.relu(x)
 
 
-class ELU(Module):
-    def forward(self, x):
-        return ag.elu(x)
-
-
 class Tanh(Module):
     def forward(self, x):
         return ag.tanh(x)
-
-
-class Flatten(Module):
-    """(N, ...) -> (N, prod(...))."""
-
-    def forward(self, x):
-        return ag.flatten(x, 1)

@@ -24,8 +24,6 @@ def check_finite(arrays: dict[str, np.ndarray], path) -> None:
 
 
 class Module:
-    training: bool = True
-
     def __call__(self, *args, **kwargs):
         return self.forward(*args, **kwargs)
 
@@ -47,9 +45,6 @@ class Module:
 
     def parameters(self) -> list[Tensor]:
         return [p for _, p in self.named_parameters()]
-
-    def num_parameters(self) -> int:
-        return sum(p.size for p in self.parameters())
 
     def zero_grad(self) -> None:
         for p in self.parameters():

@@ -226,7 +226,3 @@ def variant_name(config: QNetConfig) -> str:
         if flags == dict(dueling=config.dueling, recurrent=config.recurrent):
             return name
     raise AssertionError("unreachable")
-
-
-__all__ = ["QNet", "QNetConfig", "VARIANTS", "build_qnet", "variant_name", "conv_out",
-           "widen_recurrent_state"]

@@ -6,21 +6,21 @@ steps every drone (the arc flown, collision, reward), and ``VecDroneEnv`` / ``Dr
 are the environment around it; the policies fly baselines; ``topdown`` draws a map;
 ``calibrate`` measures baseline success rates.
 """
+from .calibration import calibrate
 from .camera import Camera
 from .distance import (ClearanceField, clearance_field, nearest_distance, nearest_distance_batch,
                        pymunk_nearest_distance, sample_start_pose)
-from .env import Box, Discrete, DroneEnv, VecDroneEnv
+from .env import Discrete, DroneEnv, VecDroneEnv
 from .geometry import (backproject, inverse_warp_numpy, pose_to_camera_transform, project,
                        relative_transform)
 from .kinematics import (ACTION_INTERVAL, ACTIONS, SAFE_DISTANCE, integrate_arc, paper_reward)
-from .policies import (Oracle, oracle_action, oracle_policy, pilot_policy, random_policy,
-                       straight_policy)
+from .policies import Oracle, oracle_policy, random_policy, straight_policy
 from .renderer import render, render_batch, render_depth_batch
 from .scenarios import SCENARIOS, make_scene
 from .scene import Scene, SceneBatch
 from .stepper import step_drones
 from .topview import topdown
-from ..viz import depth_to_rgb, write_gif as save_gif  # re-exported for convenience
+from ..viz import depth_to_rgb  # re-exported for convenience
 
 __all__ = [
     "Camera", "Scene", "SceneBatch", "SCENARIOS", "make_scene", "render", "render_batch",
@@ -28,16 +28,6 @@ __all__ = [
     "ClearanceField", "clearance_field", "sample_start_pose", "pose_to_camera_transform",
     "relative_transform", "backproject", "project", "inverse_warp_numpy", "ACTIONS",
     "ACTION_INTERVAL", "SAFE_DISTANCE", "integrate_arc", "paper_reward", "step_drones",
-    "Discrete", "Box", "DroneEnv", "VecDroneEnv", "straight_policy", "random_policy", "Oracle",
-    "oracle_policy", "oracle_action", "pilot_policy", "topdown", "depth_to_rgb", "save_gif",
-    "calibrate",
+    "Discrete", "DroneEnv", "VecDroneEnv", "straight_policy", "random_policy", "Oracle",
+    "oracle_policy", "topdown", "depth_to_rgb", "calibrate",
 ]
-
-
-def __getattr__(name):
-    # ``calibrate`` is imported on first use, so that ``python -m
-    # minid3rqn.world.calibration`` does not find its module already imported.
-    if name == "calibrate":
-        from .calibration import calibrate
-        return calibrate
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -7,7 +7,7 @@ same starts, and a run split into chunks equals one big run.
 
 Command used for docs/world.md:
 
-    python -m minid3rqn.world.calibration --n-flights 2000 --seed 0
+    python -m minid3rqn calibrate --n-flights 2000 --seed 0
 """
 from __future__ import annotations
 
@@ -35,11 +35,11 @@ def make_policy(name: str, seed: int, chunk_index: int):
 
 
 def fly(scenario: str, policy, n_flights: int, seed: int = 0, first_index: int = 0,
-        max_steps: int = 50, **env_kwargs) -> dict:
+        max_steps: int = 50) -> dict:
     """Fly ``n_flights`` flights to their end: dict of per-flight arrays "success",
     "steps", "scene_seed" and "trajectories" (n_flights, max_steps + 1, 3)."""
     env = VecDroneEnv(n_flights, scenario, seed=seed, max_steps=max_steps, observe=False,
-                      autoreset=False, first_index=first_index, **env_kwargs)
+                      first_index=first_index)
     env.reset()
     traj = np.full((n_flights, max_steps + 1, 3), np.nan)
     traj[:, 0] = env.poses
@@ -106,17 +106,3 @@ def run(args) -> int:
         raise UsageError(f"--n-flights: expected a number >= 1; got {args.n_flights}")
     calibrate(args.scenarios, args.n_flights, args.seed, verbose=True)
     return 0
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description="Success rates of oracle, straight and "
-                                                 "random pilots in every scenario.")
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
-
-
-__all__ = ["POLICIES", "fly", "calibrate", "add_arguments", "run", "main", "make_policy"]
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -46,9 +46,10 @@ class Camera:
         hfov_deg: horizontal field of view in degrees, in (0, 180). Default 90: at
             32x104 this gives fx = fy = 52 px and a vertical field of view of 34.2 deg.
         horizon_row: the image row of the horizon, cy, in [0, H - 1]; None (default) puts
-            it in the middle, (H - 1) / 2. Flying 1 m high with the default camera, the
-            lowest row meets the floor 3.35 m ahead: a wall nearer than that hides its
-            foot (docs/depth.md section 7). ``horizon_row=4`` brings that to 1.93 m.
+            it in the middle, (H - 1) / 2. Flying h = 1 m high, the lowest row (slope
+            y_n = (H - 1 - cy) / fy) meets the floor h / y_n ahead, 3.35 m with the
+            default camera: a wall nearer than that hides its foot (docs/depth.md
+            section 7). ``horizon_row=4`` brings that to 1.93 m.
     """
 
     height: int = 32
@@ -108,11 +109,6 @@ class Camera:
         return (self.height - 1) / 2.0 if self.horizon_row is None else self.horizon_row
 
     @property
-    def vfov_deg(self) -> float:
-        """Vertical field of view, 2 atan((H / 2) / fy), in degrees."""
-        return math.degrees(2.0 * math.atan(0.5 * self.height / self.fy))
-
-    @property
     def K(self) -> np.ndarray:
         """(3, 3) float64 intrinsic matrix."""
         return np.array([[self.fx, 0.0, self.cx],
@@ -142,19 +138,3 @@ class Camera:
         xn.setflags(write=False)
         yn.setflags(write=False)
         return xn, yn
-
-    def scaled(self, factor: int) -> "Camera":
-        """The same field of view at ``factor`` times the resolution (64x208 for 2)."""
-        if isinstance(factor, bool) or not isinstance(factor, (int, np.integer)) or factor < 1:
-            raise ValueError(f"Camera.scaled: factor must be an int >= 1; got {factor!r}")
-        f = int(factor)
-        row = None if self.horizon_row is None else (self.horizon_row + 0.5) * f - 0.5
-        return Camera(self.height * f, self.width * f, self.hfov_deg, row)
-
-    def floor_reach(self, altitude: float = 1.0) -> float:
-        """How far ahead (m) the lowest image row meets the floor, flying ``altitude`` m
-        high: altitude / y_n of the last row. A wall nearer than this hides its foot."""
-        return float(altitude) / float((self.height - 1 - self.cy) / self.fy)
-
-
-__all__ = ["Camera"]

@@ -176,11 +176,6 @@ class ClearanceField:
         grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1)
         self.values = np.where(scene.in_region(grid), d, -np.abs(d)).astype(np.float32)
 
-    def __call__(self, xy) -> np.ndarray:
-        xy = np.asarray(xy, float)
-        return sample_fields(self.values[None], self.origin[None], self.resolution,
-                             xy.reshape(1, -1, 2))[0].reshape(xy.shape[:-1])
-
 
 def sample_fields(values, origins, resolution: float, xy) -> np.ndarray:
     """Bilinear lookup in N stacked fields: values (N, Gx, Gy), origins (N, 2),
@@ -258,8 +253,3 @@ def sample_start_pose(scene: Scene, rng: np.random.Generator, actions=ACTIONS,
                     return np.array([xy[k, 0], xy[k, 1], yaw[k]])
     raise RuntimeError(f"sample_start_pose: no free start pose found in scene {scene.name!r} "
                        f"(seed {scene.seed}) after {max_rounds * 64} candidates")
-
-
-__all__ = ["nearest_distance", "nearest_distance_batch", "nearest_distance_by_kind", "KINDS",
-           "pymunk_nearest_distance",
-           "ClearanceField", "clearance_field", "sample_fields", "sample_start_pose"]

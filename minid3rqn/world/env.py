@@ -5,33 +5,24 @@ Gymnasium conventions without the dependency:
     obs, info = env.reset(seed=None, options=None)
     obs, reward, terminated, truncated, info = env.step(action)
 
-One step is ``stepper.step_drones``, the step of every flight in the package (the
-Q-learning flights, ``rl.flights.Flights``, take it too). The action index picks a row
-(v, omega) of the action table; the drone flies the exact arc for ``dt`` seconds,
-checked for collision every 0.1 m of arc, and ends at the arc's end:
+One step is ``stepper.step_drones`` (the arc flown, the collision check, the reward:
+see there), the step of every flight in the package; then
 
-    collided = (clearance < safe_distance somewhere on the arc),
-    reward = reward_fn(d_nearest at the arc's end, collided[, yaw_rate])   (paper: d or -1)
     terminated = collided,    truncated = (steps == max_steps) and not collided.
-
-A collision ends the episode where the arc ends, which may be past the obstacle hit.
 
 Observation: the RGB frame (H, W, 3) uint8 from the new pose. ``info`` holds "pose"
 (x, y, yaw), "depth" (H, W) float32 ground truth, "d_nearest", "collided", "step" and
-"scene_seed" (``VecDroneEnv``: one row per flight).
+"scene_seed" (``VecDroneEnv``: one row per flight). A flight that has ended stays put
+(``step`` skips it: reward 0, flags as they ended) until the next ``reset``.
 
-Worlds. Every ``reset`` generates a fresh world from the flight's generator (for
-training diversity; ``episodes_per_world=k`` keeps each world for k episodes, since a
-new world costs about as much as a few dozen steps) unless ``options`` say otherwise:
+Worlds. Every ``reset`` generates a fresh world from the flight's generator unless
+``options`` say otherwise:
     {"scene_seed": k}   this scenario's world number k;
-    {"new_world": False} keep the current world (a new start pose only);
     {"pose": (x, y, yaw)} start there instead of a random free start pose.
 ``reset(seed=s)`` re-seeds the generators first, so a seed fixes worlds and starts.
 
 Changing the actions or the reward is one constructor argument:
-    DroneEnv(actions=[[2.0, 0.0], [2.0, 0.3], [2.0, -0.3]], reward_fn=my_reward)
-where ``my_reward(d_nearest, collided)``, or ``my_reward(d_nearest, collided, yaw_rate)``
-(the yaw rate of the action flown), is called with arrays, one entry per flight.
+    DroneEnv(actions=[[2.0, 0.0], [2.0, 0.3], [2.0, -0.3]], reward_fn=my_reward).
 """
 from __future__ import annotations
 
@@ -49,11 +40,9 @@ SCENE_SEED_RANGE = 2 ** 31
 
 
 class Discrete:
-    """The action space {0, 1, ..., n - 1}."""
+    """The action space {0, 1, ..., n - 1} (n >= 1: the rows of a checked action table)."""
 
     def __init__(self, n: int):
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"Discrete: n must be an int >= 1; got {n!r}")
         self.n = int(n)
 
     def sample(self, rng: np.random.Generator, size=None):
@@ -62,24 +51,6 @@ class Discrete:
 
     def contains(self, x) -> bool:
         return isinstance(x, (int, np.integer)) and not isinstance(x, bool) and 0 <= x < self.n
-
-    def __repr__(self) -> str:
-        return f"Discrete({self.n})"
-
-
-class Box:
-    """A box of arrays: ``shape``, ``dtype``, elementwise bounds ``low`` .. ``high``."""
-
-    def __init__(self, low, high, shape, dtype):
-        self.low, self.high, self.shape, self.dtype = low, high, tuple(shape), np.dtype(dtype)
-
-    def contains(self, x) -> bool:
-        x = np.asarray(x)
-        return x.shape == self.shape and x.dtype == self.dtype and bool(
-            np.all(x >= self.low) and np.all(x <= self.high))
-
-    def __repr__(self) -> str:
-        return f"Box({self.low}, {self.high}, {self.shape}, {self.dtype.name})"
 
 
 def _check_common(scenario, camera, actions, reward_fn, max_steps, safe_distance, dt, name):
@@ -110,10 +81,10 @@ def _check_options(options, n, name):
         return {}
     if not isinstance(options, dict):
         raise TypeError(f"{name}: options must be a dict or None; got {type(options).__name__}")
-    unknown = set(options) - {"scene_seed", "new_world", "pose"}
+    unknown = set(options) - {"scene_seed", "pose"}
     if unknown:
         raise ValueError(f"{name}: unknown option(s) {sorted(unknown)}; expected some of "
-                         f"['new_world', 'pose', 'scene_seed']")
+                         f"['pose', 'scene_seed']")
     if "pose" in options:
         try:
             poses = np.broadcast_to(np.asarray(options["pose"], np.float64), (n, 3))
@@ -141,44 +112,27 @@ class VecDroneEnv:
         max_steps: steps before truncation (50, the paper's success criterion).
         safe_distance: collision threshold on the clearance (0.5 m, paper).
         dt: seconds per action (0.4, paper).
-        scene_overrides: dict of scenario parameters passed to ``make_scene``.
         observe: render obs and GT depth (False skips rendering: obs is None).
-        episodes_per_world: episodes flown in each generated world (1: a new world
-            every reset).
-        autoreset: when a flight ends, start its next episode in the same ``step`` call
-            (its last obs, pose and depth go to info["final_obs"], ["final_pose"],
-            ["final_depth"], marked by info["done"]). Without autoreset an ended flight
-            stays put: it is skipped by ``step`` (reward 0, flags as they ended) and
-            ``active`` turns False; ``reset`` starts all flights again.
         first_index: index of flight 0 in the seed stream (for splitting a large
             evaluation into chunks that reproduce one big run).
 
-    ``reset``/``step`` return batched arrays: obs (N, H, W, 3) uint8, reward (N,),
-    terminated (N,), truncated (N,) and info with "pose" (N, 3), "depth" (N, H, W),
-    "d_nearest" (N,), "collided" (N,), "step" (N,), "scene_seed" (N,).
+    ``reset``/``step`` return batched arrays (module docstring); ``active`` (N,) marks
+    the flights not yet ended.
     """
 
     def __init__(self, n_envs: int, scenario: str = "basic", seed=0,
                  camera: Camera | None = None, actions=None, reward_fn=None, max_steps: int = 50,
                  safe_distance: float = SAFE_DISTANCE, dt: float = ACTION_INTERVAL,
-                 scene_overrides: dict | None = None, observe: bool = True,
-                 episodes_per_world: int = 1, autoreset: bool = True, first_index: int = 0):
+                 observe: bool = True, first_index: int = 0):
         name = type(self).__name__
         self.n_envs = _check_positive_int(n_envs, f"{name}: n_envs")
         self.camera, self.actions, self.reward_fn = _check_common(
             scenario, camera, actions, reward_fn, max_steps, safe_distance, dt, name)
         self.scenario, self.max_steps = scenario, int(max_steps)
         self.safe_distance, self.dt = float(safe_distance), float(dt)
-        self.scene_overrides = dict(scene_overrides or {})
-        self.observe, self.autoreset = bool(observe), bool(autoreset)
-        self.episodes_per_world = _check_positive_int(episodes_per_world,
-                                                      f"{name}: episodes_per_world")
-        self.first_index = int(first_index)
+        self.observe, self.first_index = bool(observe), int(first_index)
         self.action_space = Discrete(len(self.actions))
-        self.observation_space = Box(0, 255, (self.n_envs, self.camera.height,
-                                              self.camera.width, 3), np.uint8)
         self._seed(seed)
-        self.episodes = np.zeros(self.n_envs, np.int64)
         self.scenes = [None] * self.n_envs
         self.batch = None
         self.scene_seeds = np.zeros(self.n_envs, np.int64)
@@ -196,13 +150,8 @@ class VecDroneEnv:
         scene_seed = int(rng.integers(SCENE_SEED_RANGE))             # always drawn: keeps
         if "scene_seed" in options:                                  # the stream aligned
             scene_seed = int(np.broadcast_to(options["scene_seed"], (self.n_envs,))[i])
-        due = self.episodes[i] % self.episodes_per_world == 0
-        if options.get("new_world", due or "scene_seed" in options) or self.scenes[i] is None:
-            self.scenes[i] = make_scene(self.scenario, scene_seed, **self.scene_overrides)
-            self.scene_seeds[i] = scene_seed
-            if self.batch is not None:
-                self.batch.set(i, self.scenes[i])
-        self.episodes[i] += 1
+        self.scenes[i] = make_scene(self.scenario, scene_seed)
+        self.scene_seeds[i] = scene_seed
         if "pose" in options:
             start = options["pose"][i]
         else:
@@ -218,7 +167,6 @@ class VecDroneEnv:
         options = _check_options(options, self.n_envs, f"{type(self).__name__}.reset")
         if seed is not None:
             self._seed(seed)
-            self.episodes[:] = 0
         for i in range(self.n_envs):
             self._reset_one(i, options)
         if self.batch is None or any(a is not b for a, b in zip(self.batch.scenes, self.scenes)):
@@ -268,38 +216,16 @@ class VecDroneEnv:
         done = self.active & (terminated | truncated)
         self.active &= ~done
         obs, info = self._observe(d, terminated.copy())
-        info["done"] = done
-        if self.autoreset and done.any():
-            self._restart(np.flatnonzero(done), obs, info)
         return obs, reward, terminated, truncated, info
-
-    def _restart(self, idx, obs, info):
-        """Start the next episodes of the ended flights ``idx`` inside ``step``: keep
-        their last frames in info["final_*"], render only their first frames."""
-        info["final_pose"] = info["pose"].copy()
-        if self.observe:
-            info["final_obs"], info["final_depth"] = obs.copy(), info["depth"].copy()
-        for i in idx:
-            self._reset_one(i, {})
-        d_new = nearest_distance_batch(self.batch, self.poses[:, None, :2])[:, 0]
-        info["pose"][idx] = self.poses[idx]
-        info["d_nearest"] = np.where(info["done"], d_new, info["d_nearest"])
-        info["collided"] = np.where(info["done"], False, info["collided"])
-        info["step"][idx] = 0
-        info["scene_seed"][idx] = self.scene_seeds[idx]
-        if self.observe:
-            rgb, depth = render_batch([self.scenes[i] for i in idx], self.poses[idx],
-                                      self.camera)
-            obs[idx], info["depth"][idx] = rgb, depth
 
 
 class DroneEnv(VecDroneEnv):
-    """One flight in one world: ``VecDroneEnv`` with N = 1 and no autoreset, taking and
-    giving one flight's values: an int action; obs (H, W, 3); a float reward; bool flags;
-    info with "pose" (3,), "depth" (H, W) and numbers. Once the flight has ended,
-    ``step`` raises until ``reset``.
+    """One flight in one world: ``VecDroneEnv`` with N = 1, taking and giving one
+    flight's values: an int action; obs (H, W, 3); a float reward; bool flags; info with
+    "pose" (3,), "depth" (H, W) and numbers. Once the flight has ended, ``step`` raises
+    until ``reset``.
 
-    Args: as VecDroneEnv's, without n_envs, autoreset and first_index. ``seed`` (an int
+    Args: as VecDroneEnv's, without n_envs and first_index. ``seed`` (an int
     or a sequence of ints) seeds the generator of worlds and starts as
     ``np.random.default_rng(seed)``: ``DroneEnv(seed=[s, i])`` flies flight i of
     ``VecDroneEnv(n, seed=s)``.
@@ -308,13 +234,9 @@ class DroneEnv(VecDroneEnv):
     def __init__(self, scenario: str = "basic", seed=0, camera: Camera | None = None,
                  actions=None, reward_fn=None, max_steps: int = 50,
                  safe_distance: float = SAFE_DISTANCE, dt: float = ACTION_INTERVAL,
-                 scene_overrides: dict | None = None, observe: bool = True,
-                 episodes_per_world: int = 1):
+                 observe: bool = True):
         super().__init__(1, scenario, seed, camera, actions, reward_fn, max_steps,
-                         safe_distance, dt, scene_overrides, observe, episodes_per_world,
-                         autoreset=False)
-        self.observation_space = Box(0, 255, (self.camera.height, self.camera.width, 3),
-                                     np.uint8)
+                         safe_distance, dt, observe)
 
     def _seed(self, seed):
         self.rngs = [np.random.default_rng(seed)]
@@ -338,7 +260,7 @@ class DroneEnv(VecDroneEnv):
     @staticmethod
     def _one(obs, info):
         """Flight 0's obs and info, numbers as Python scalars."""
-        one = {k: v[0].item() if v.ndim == 1 else v[0] for k, v in info.items() if k != "done"}
+        one = {k: v[0].item() if v.ndim == 1 else v[0] for k, v in info.items()}
         return None if obs is None else obs[0], one
 
     def reset(self, seed=None, options=None):
@@ -356,6 +278,3 @@ class DroneEnv(VecDroneEnv):
         obs, reward, term, trunc, info = super().step(np.array([action], np.int64))
         obs, info = self._one(obs, info)
         return obs, float(reward[0]), bool(term[0]), bool(trunc[0]), info
-
-
-__all__ = ["Discrete", "Box", "VecDroneEnv", "DroneEnv"]

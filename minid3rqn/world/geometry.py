@@ -227,8 +227,3 @@ def inverse_warp_numpy(src_rgb, tgt_depth, K, T_tgt_to_src, padding: str = "zero
     if not batched:
         valid = valid[0]
     return warped, valid
-
-
-__all__ = ["PADDING_MODES", "Z_EPS", "rotation_world_from_camera", "pose_to_camera_transform",
-           "invert_transform", "relative_transform", "backproject", "project",
-           "bilinear_sample_numpy", "inverse_warp_numpy"]

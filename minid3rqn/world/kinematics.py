@@ -88,12 +88,12 @@ def plan_paths(actions, dt: float, segments=(1, 2, 4, 8), spacing: float = 0.4):
     fastest ones (enough to steer round obstacles, and 3 instead of n choices per segment).
 
     Returns (per_step (K, T) the action index of every step, points (K, M, 3) poses
-    sampled ``plan_substeps`` times per step).
+    sampled along each plan by ``fly_plans``).
     """
     actions = np.asarray(actions, np.float64)
     fast = np.flatnonzero(actions[:, 0] == actions[:, 0].max())
-    later = np.unique(fast[[np.argmax(actions[fast, 1]), np.argmin(actions[fast, 1]),
-                            np.argmin(np.abs(actions[fast, 1]))]])
+    straightest = fast[np.argmin(np.abs(actions[fast, 1]))]
+    later = np.unique(np.append(loiter_actions(actions), straightest))
     grids = np.meshgrid(np.arange(len(actions)), *[later] * (len(segments) - 1), indexing="ij")
     combos = np.stack(grids, -1).reshape(-1, len(segments))
     per_step = np.repeat(combos, segments, axis=1)                        # (K, T) action ids
@@ -104,7 +104,7 @@ def fly_plans(poses, per_step, actions, dt: float, spacing: float = 0.4) -> np.n
     """Poses along action sequences: poses (K, 3), per_step (K, T) action ids ->
     (K, T * n, 3), sampled n = ceil(v_max dt / spacing) times per step."""
     actions = np.asarray(actions, np.float64)
-    n_sub = max(1, int(math.ceil(float(actions[:, 0].max()) * dt / spacing - 1e-9)))
+    n_sub = n_substeps(actions, dt, spacing)
     taus = dt * np.arange(1, n_sub + 1) / n_sub
     pose = np.asarray(poses, np.float64)
     points = []
@@ -143,11 +143,6 @@ def loiter_circles(poses, actions, spacing: float = 0.4) -> np.ndarray:
     return integrate_arc(poses, v[:, None], omega[:, None], taus)[..., :2]
 
 
-def wrap_angle(a):
-    """Angles wrapped into [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def paper_reward(d_nearest, collided):
     """The paper's reward (Eq. 4): R = d_nearest without collision, -1 on collision.
 
@@ -157,9 +152,3 @@ def paper_reward(d_nearest, collided):
     c = np.asarray(collided, dtype=bool)
     r = np.where(c, -1.0, d)
     return float(r) if r.ndim == 0 else r
-
-
-__all__ = ["ACTIONS", "ACTION_INTERVAL", "SAFE_DISTANCE", "MAX_SUBSTEP", "check_action_table",
-           "integrate_arc", "n_substeps", "substep_poses", "plan_paths", "fly_plans",
-           "loiter_actions", "loiter_circles", "wrap_angle",
-           "paper_reward"]

@@ -55,10 +55,8 @@ def random_policy(rng: np.random.Generator):
 
 class Oracle:
     """The look-ahead planner (module docstring). Call it as a policy: ``oracle(env)``.
-
-    It remembers each flight's chosen plan: the rest of it (its last action held one
-    step longer) competes with the fixed candidates at the next step, so a plan found
-    safe stays available (receding horizon). Memory is cleared where ``env.steps`` is 0.
+    Each flight's remembered plan (its rest, the last action held one step longer) is
+    cleared where ``env.steps`` is 0.
 
     Args:
         segments: steps each action of a plan is held (the first is the action taken).
@@ -69,31 +67,20 @@ class Oracle:
         turn_cost: penalty per rad/s of the first action's yaw rate (prefers straight).
         resolution: grid step (m) of the clearance fields.
         certify: how many of the best surviving plans per flight get the loiter check.
-        rng, preference, epsilon, hold: for a stochastic pilot. Each flight adds
-            ``preference_i * omega`` to the score of each first action, preference_i
-            redrawn uniformly in [-preference, preference] every ``hold`` steps on
-            average; with probability ``epsilon`` it takes a random action among those
-            whose best plan survives the whole horizon.
     """
 
     def __init__(self, segments=(1, 2, 4, 8), spacing: float = 0.4, margin: float = 0.25,
                  cap: float = 1.5, turn_cost: float = 0.02, resolution: float = 0.25,
-                 rng: np.random.Generator | None = None, preference: float = 0.0,
-                 epsilon: float = 0.0, hold: float = 10.0, certify: int = 4):
+                 certify: int = 4):
         if not segments or any(int(s) < 1 for s in segments):
             raise ValueError(f"Oracle: segments must be positive step counts; got {segments!r}")
-        if (preference or epsilon) and not isinstance(rng, np.random.Generator):
-            raise TypeError("Oracle: a stochastic pilot (preference or epsilon > 0) needs rng, "
-                            "a numpy Generator")
         self.segments = tuple(int(s) for s in segments)
         self.spacing, self.margin, self.cap = float(spacing), float(margin), float(cap)
         self.turn_cost, self.resolution = float(turn_cost), float(resolution)
-        self.rng, self.preference, self.epsilon = rng, float(preference), float(epsilon)
-        self.hold, self.certify = float(hold), int(certify)
+        self.certify = int(certify)
         self._plans_key = None
         self._held = None
         self._stack = None
-        self._prefs = None
         self._memory = None
 
     def plans(self, actions: np.ndarray, dt: float):
@@ -193,20 +180,7 @@ class Oracle:
                           -np.inf)                                            # (N, A, K + 1)
         best_plan = np.argmax(masked, axis=-1)
         per_action = masked[rows[:, None], np.arange(n_a)[None, :], best_plan]
-        choice_score = per_action.copy()
-        if self.preference:
-            if self._prefs is None or len(self._prefs) != n:
-                self._prefs = self.rng.uniform(-self.preference, self.preference, n)
-            redraw = self.rng.random(n) < 1.0 / self.hold
-            self._prefs[redraw] = self.rng.uniform(-self.preference, self.preference,
-                                                   int(redraw.sum()))
-            choice_score += self._prefs[:, None] * actions[:, 1][None, :]
-        choice = np.argmax(choice_score, axis=1)
-        if self.epsilon:
-            safe = per_action >= m
-            keys = np.where(safe, self.rng.random((n, n_a)), -1.0)
-            explore = (self.rng.random(n) < self.epsilon) & safe.any(1)
-            choice = np.where(explore, np.argmax(keys, axis=1), choice)
+        choice = np.argmax(per_action, axis=1)
 
         # Remember the rest of the chosen plan and what follows it: the loiter turn if the
         # plan is certified (so the memory stays certified), else its last action again.
@@ -219,31 +193,3 @@ class Oracle:
 
 
 oracle_policy = Oracle()
-
-
-def oracle_action(scene, pose, actions=None, dt: float = 0.4, safe_distance: float = 0.5,
-                  oracle: Oracle | None = None) -> int:
-    """The oracle's action index for one drone at ``pose`` (3,) in ``scene``."""
-    from .kinematics import ACTIONS, check_action_table
-
-    class _State:
-        pass
-    state = _State()
-    state.scenes = [scene]
-    state.poses = np.asarray(pose, np.float64).reshape(1, 3)
-    state.actions = check_action_table(ACTIONS if actions is None else actions)
-    state.dt, state.safe_distance = float(dt), float(safe_distance)
-    state.steps = np.zeros(1, np.int64)            # a one-off decision: no plan memory
-    return int((oracle or Oracle())(state)[0])
-
-
-def pilot_policy(rng: np.random.Generator, preference: float = 0.3, epsilon: float = 0.1,
-                 hold: float = 10.0) -> Oracle:
-    """A scripted "manual" pilot for collecting depth-training flights: the oracle with a
-    randomly drifting preference for left or right turns and occasional random safe
-    actions, so its flights cover varied views while still avoiding obstacles."""
-    return Oracle(rng=rng, preference=preference, epsilon=epsilon, hold=hold)
-
-
-__all__ = ["straight_policy", "random_policy", "Oracle", "oracle_policy", "oracle_action",
-           "pilot_policy"]

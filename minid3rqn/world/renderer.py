@@ -15,7 +15,7 @@ Walls (one 2D hit per column: the smallest t > 0):
         k = X_c^2 + Z_c^2 - R^2  (a hit iff the root is real and positive).
 Segments that cannot appear in the field of view (image interval outside
 [x_n(0), x_n(W-1)]) are culled first, so each column meets only the visible ones;
-circles are few: all tried for a few poses, culled by their angular extent for many.
+circles are few: all tried for one pose, culled by their angular extent for several.
 
 Rows (y_n = (v - cy) / fy, positive downwards). The floor lies h = altitude below the
 camera and the ceiling H_c - h above it, so the planes' depths are
@@ -25,7 +25,7 @@ and the pixel (v, u) sees the wall if t(u) <= Z_plane(v), else the plane:
 The seen point is at height h - y_n t(u) on the wall, or at p + Z_plane(v) r(u) on the
 floor or ceiling, with r(u) = f + x_n g the column's ray in world coordinates
 (f = (cos yaw, sin yaw) forward, g = (sin yaw, -cos yaw) right). Its colour is
-``gain * shade * (c0 + (c1 - c0) p)`` with the pattern p of ``textures.pattern``.
+``gain * shade * (c0 + (c1 - c0) p)`` with the pattern p of ``textures.py``.
 
 Scenes are closed (walls all around), so every pixel has a finite depth. The camera is
 assumed outside every obstacle (the drone collides 0.5 m before touching one).
@@ -36,31 +36,15 @@ import numpy as np
 
 from .camera import Camera
 from .scene import Scene, SceneBatch
-from .textures import (CEILING_ID, D_AMP_B, D_AMP_N, D_C0, D_DC, D_INV_NS, D_INV_SU, D_INV_SV,
+from .textures import (CEILING_ID, D_C0, D_DC, D_INV_NS, D_INV_SU, D_INV_SV,
                        D_LB, D_LN, D_NOX, D_NOY, D_OX, D_OY, D_STAGGER, D_WB, D_WN, FLOOR_ID,
                        LIGHT, N_DERIVED, derived_table, pattern_from_coords, wall_shade)
 
 T_MIN = 1e-9          # hits closer than this (metres of depth) are ignored
 CHUNK_PIXELS = 16384  # pixels shaded per pass (``_chunks``): temporaries stay in cache
 ANGLE_SLACK = 1e-6    # radians of margin in the circle cull (keeps it conservative)
-FEW_POSES = 4         # up to this many poses, cast every kept surface against every column
 
 assert D_LN == D_LB + 1 and D_WN == D_WB + 1 and D_DC.start == D_C0.stop   # sliced below
-assert (D_AMP_B, D_AMP_N) == (D_LB, D_LN)
-
-
-def _compact(keep: np.ndarray, rows: np.ndarray):
-    """Indices that gather the kept entries of each row to the front: keep (N, M) bool ->
-    (order (N, K), valid (N, K)) with K the largest kept count (at least 1)."""
-    if len(keep) == 1:
-        order = np.flatnonzero(keep[0])
-        if len(order):
-            return order[None], np.ones((1, len(order)), bool)
-    k = max(int(np.count_nonzero(keep, axis=1).max()), 1)
-    if k == keep.shape[1]:
-        return np.broadcast_to(np.arange(k), keep.shape), keep
-    order = np.argsort(~keep, axis=1, kind="stable")[:, :k]
-    return order, keep[rows, order]
 
 
 def cast_columns(batch: SceneBatch, poses: np.ndarray, xn: np.ndarray) -> dict:
@@ -99,47 +83,14 @@ def _segment_intervals(seg, xn):
     return d, lo, hi, keep, prod[:, 0] - prod[:, 1]
 
 
-def _nearest_segments_padded(num, dX, dZ, xn, lo, hi, keep):
-    """Nearest segment hit of every column for a few poses: (t (N, W), segment index
-    (N, W)); t = inf and index 0 where a column meets no segment (the arguments are
-    ``_segment_intervals``'s). Every kept segment against every column, (N, K, W) (the
-    columns along the fast axis), masked to its interval [lo, hi] (lo = inf for the
-    padding entries of poses with fewer kept segments): few, large NumPy calls."""
-    pack = np.stack([num, dX, dZ, np.where(keep, lo, np.inf), hi], axis=1)   # (N, 5, E)
-    order, _ = _compact(keep, np.arange(len(num))[:, None])
-    kept = np.take_along_axis(pack, order[:, None, :], axis=2)           # (N, 5, K)
-    num, dX, dZ, lo, hi = kept.transpose(1, 0, 2)[..., None]             # (N, K, 1) each
-    t_s = num / (dX - dZ * xn)                                           # (N, K, W)
-    t_s = np.where((xn >= lo) & (xn <= hi), t_s, np.inf)
-    k_s = np.argmin(t_s, axis=1)[:, None]                                # (N, 1, W)
-    return (np.take_along_axis(t_s, k_s, 1)[:, 0],
-            np.take_along_axis(order, k_s[:, 0], 1))
-
-
-def _nearest_circles(Xc, Zc, R, xn, rows):
-    """Nearest circle hit of every column for a few poses: (t (N, W), circle index
-    (N, W)), t = inf where none. t = (b - sqrt(b^2 - a k)) / a (module docstring), tried
-    for every circle (culling costs more than it saves here; padding has R = 0)."""
-    k = np.where(R > 0, Xc * Xc + Zc * Zc - R * R, np.inf)[:, None, :]
-    xw = xn[:, None]                                                     # (W, 1)
-    b = Zc[:, None, :] + xw * Xc[:, None, :]                             # (N, W, C)
-    a = 1.0 + xw * xw
-    t_c = (b - np.sqrt(b * b - a * k)) / a                               # NaN: no hit
-    t_c = np.where(t_c > T_MIN, t_c, np.inf)
-    ic = np.argmin(t_c, axis=-1)
-    return t_c[rows, np.arange(len(xn)), ic], ic
-
-
 def _cast_columns(batch: SceneBatch, poses: np.ndarray, xn: np.ndarray) -> dict:
-    """Body of ``cast_columns`` (run with floating-point warnings off). Three paths with
-    bit-identical results: one pose goes to ``_cast_one``; up to FEW_POSES poses try every
-    kept segment and every circle against every column (few, large NumPy calls, below);
-    more poses go to ``_cast_many``, which evaluates only the pairs that can hit."""
+    """Body of ``cast_columns`` (run with floating-point warnings off). Two paths with
+    bit-identical results: one pose goes to ``_cast_one``; more poses go to
+    ``_cast_many``, which evaluates only the (surface, column) pairs that can hit."""
     n = len(poses)
     if n == 1:
         return _cast_one(batch, poses, xn)
-    rows = np.arange(n)[:, None]
-    world = rows if len(batch) == n else np.zeros((n, 1), np.int64)
+    world = np.arange(n) if len(batch) == n else np.zeros(n, np.int64)
     c, s = np.cos(poses[:, 2, None]), np.sin(poses[:, 2, None])          # (N, 1)
 
     # Segment ends and circle centres P in camera coordinates, all in one pass:
@@ -152,22 +103,9 @@ def _cast_columns(batch: SceneBatch, poses: np.ndarray, xn: np.ndarray) -> dict:
     seg = np.ascontiguousarray(xz[:, :, :2 * e_count]).reshape(n, 2, 2, e_count)  # X/Z, A/B
     d, lo, hi, keep, num = _segment_intervals(seg, xn)
     Xc, Zc = xz[:, 0, 2 * e_count:], xz[:, 1, 2 * e_count:]              # (N, C)
-    if n > FEW_POSES:
-        out = _cast_many(batch, world[:, 0], xn, seg, d, lo, hi, keep, num, Xc, Zc,
-                         poses[:, 2, None], c, s)
-        out["world"] = world
-        return out
-    ts, iseg = _nearest_segments_padded(num, d[:, 0, 0], d[:, 1, 0], xn, lo, hi, keep)
-    R = batch.circ_r[world[:, 0]]
-    tc, ic = _nearest_circles(Xc, Zc, R, xn, rows)
-    # The winner of each column and what its surface needs.
-    ends = np.concatenate([seg[:, :, 0], d[:, :, 0]], axis=1)           # (N, 4, E)
-    xa, za, ex, ez = np.take_along_axis(ends, iseg[:, None, :], axis=2).transpose(1, 0, 2)
-    out = _surface(np.minimum(tc, ts), tc < ts, xn, (xa, za, ex, ez), batch.seg_len[world, iseg],
-                   batch.seg_u0[world, iseg], batch.seg_app[world, iseg],
-                   (Xc[rows, ic], Zc[rows, ic], R[rows, ic], batch.circ_app[world, ic]),
-                   poses[:, 2, None], c, s)
-    out["world"] = world
+    out = _cast_many(batch, world, xn, seg, d, lo, hi, keep, num, Xc, Zc, poses[:, 2, None],
+                     c, s)
+    out["world"] = world[:, None]
     return out
 
 
@@ -181,8 +119,8 @@ def _cast_many(batch, world, xn, seg, d, lo, hi, keep, num, Xc, Zc, yaw, c, s) -
     conservative). Each candidate surface is repeated once per column of its run, its t
     computed per pair, and the smallest t of each column found with ``np.minimum.at``.
     Ties go to the lowest surface id, with the E segments numbered before the C circles:
-    the same winner as the few-pose path (a circle wins only if strictly nearer). A
-    column that meets nothing gets t = inf and segment 0, as in the few-pose path.
+    the same winner as the single-pose path (a circle wins only if strictly nearer). A
+    column that meets nothing gets t = inf and segment 0, as in the single-pose path.
 
     world (N,), yaw, c, s (N, 1); the other arguments as in ``_cast_columns``. Returns
     the dict of ``cast_columns`` without "world".
@@ -233,7 +171,7 @@ def _cast_many(batch, world, xn, seg, d, lo, hi, keep, num, Xc, Zc, yaw, c, s) -
     t_c = (b - np.sqrt(b * b - a * k_p)) / a
     t_pair[n_seg_pairs:] = np.where(t_c > T_MIN, t_c, np.inf)
     # Circle pairs that miss are dropped, so that a column with no hit at all keeps the
-    # segment choice of the few-pose path.
+    # segment choice of the single-pose path.
     drop = n_seg_pairs + np.flatnonzero(~(t_c > T_MIN))
     if len(drop):
         t_pair, pixel, cand = (np.delete(v, drop) for v in (t_pair, pixel, cand))
@@ -439,7 +377,7 @@ def _camera_constants(camera: Camera) -> dict:
 # Columns of the per-pixel tables (``_shade_pixels``), rows of 8 float32: 32 bytes is the
 # widest row that ``np.take`` copies without a memmove per row.
 # Table A: the four lattice coordinates c = 2 pattern + axis (pattern 0 blocks, 1 noise;
-# axis 0 along s, 1 along h; ``textures.texel_coords``) are c = x * scale + offset, x = s
+# axis 0 along s, 1 along h; ``textures.pattern_from_coords``) are c = x * scale + offset, x = s
 # or h; A holds the four scales, then the four offsets.
 _COORD_COLS = [D_INV_SU, D_INV_SV, D_INV_NS, D_INV_NS, D_OX, D_OY, D_NOX, D_NOY]
 # Table C: the shaded colours (c0 with + 1/2 for rounding, then c1 - c0), then the faded
@@ -529,7 +467,7 @@ def render_batch(scenes, poses, camera: Camera | None = None):
 
 
 def _faded_weights(q, footprint):
-    """``textures.fade`` for both patterns at once: (..., 2) = (a_b w_b, a_n w_n) with
+    """The faded weights of both patterns: (..., 2) = (a_b w_b, a_n w_n) with
     a = clip((L / f - 1) / 2, 0, 1), L the columns D_LB, D_LN of q (..., N_DERIVED), w its
     columns D_WB, D_WN and f the footprint (...)."""
     a = q[..., D_LB:D_LN + 1] * (0.5 / footprint)[..., None] - 0.5
@@ -670,12 +608,3 @@ def render(scene: Scene, pose, camera: Camera | None = None):
                          f"{pose.shape}")
     rgb, depth = render_batch(scene, pose[None], camera)
     return rgb[0], depth[0]
-
-
-def depth_to_ray_length(depth, camera: Camera) -> np.ndarray:
-    """Convert pinhole depth Z to the length of the ray, Z sqrt(1 + x_n^2 + y_n^2)."""
-    xn, yn = camera.column_rays(), camera.row_rays()
-    return np.asarray(depth) * np.sqrt(1.0 + xn[None, :] ** 2 + yn[:, None] ** 2)
-
-
-__all__ = ["render", "render_batch", "cast_columns", "depth_to_ray_length"]

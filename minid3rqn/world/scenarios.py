@@ -9,12 +9,11 @@
 - ``corners`` (Env-3): a closed corridor with sharp L-corners and zigzags, running round
   a random polyomino; tiled walls.
 
-All are closed (every camera ray hits a wall). Sizes respect the drone: the turning
-radius at 2 m/s and 0.5 rad/s is 4 m, a flight is 50 x 0.8 m = 40 m and a collision
-happens at 0.5 m. The worlds are closed and at most about 40 m across, so flying blind
-fails; the gaps, corridor widths and corner geometry leave room for a pilot who looks
-ahead (turning at 4 m radius). ``make_scene(name, seed, **overrides)`` builds one; the keyword overrides
-replace the scenario's parameters (listed in ``DEFAULTS``).
+All are closed (every camera ray hits a wall) and at most about 40 m across, so flying
+blind fails (a flight is 50 x 0.8 m = 40 m); the gaps, corridor widths and corners
+leave room for a pilot who looks ahead and turns on a 4 m radius (2 m/s at 0.5 rad/s).
+``make_scene(name, seed, **overrides)`` builds one; the keyword overrides replace the
+scenario's parameters (listed in ``DEFAULTS``).
 """
 from __future__ import annotations
 
@@ -410,5 +409,3 @@ def _intersections(rng, seed, n_blocks, block_size, street, altitude, ceiling,
 
 _GENERATORS = {"basic": _basic, "channel": _channel, "intersections": _intersections,
                "corners": _corners}
-
-__all__ = ["SCENARIOS", "DEFAULTS", "make_scene"]

@@ -79,10 +79,6 @@ class Scene:
         if self.space is None:
             self.space = build_space(self)
 
-    @property
-    def n_obstacles(self) -> int:
-        return len(self.circle_radii) + len(self.wall_app) + len(self.poly_app)
-
     def render_segments(self):
         """All straight surfaces: walls then polygon edges (degenerate edges dropped).
 
@@ -237,18 +233,17 @@ class SceneBatch:
 
     Arrays (n = world index):
         circ_c (N, C, 2), circ_r (N, C), circ_app (N, C)     circles
-        seg_a, seg_b (N, E, 2), seg_app (N, E), seg_u0 (N, E) render segments
+        seg_app (N, E), seg_u0 (N, E), seg_len (N, E)         render segments
         wall_a, wall_b (N, S, 2)                               walls (for distances)
         poly (N, P, V, 2)                                      polygons (for distances)
-        seg_ab (N, 2E, 2) both ends stacked, seg_len (N, E)    segment lengths
         points (N, 2, 2E + C)                                  x and y rows of the
             segment ends A, the ends B and the circle centres (the renderer turns them
             into camera coordinates in one pass)
         seg_consts (N, E, 3)                                   length, u0, app (float)
         circ_r2 (N, C), circ_inf (N, C)                        R^2; 0 (inf for padding)
-        apps (N, A, N_PARAMS) float32                          appearance tables
-        tex (N, A, N_DERIVED) float32                          ``derived_table(apps)``
-        altitude (N,), ceiling (N,)
+        tex (N, A, N_DERIVED) float32                          ``derived_table`` of the
+                                                               appearance tables
+        altitude (N,)
     ``set(n, scene)`` swaps one world in place (the arrays grow if it needs more room).
     """
 
@@ -278,23 +273,18 @@ class SceneBatch:
         self.circ_c = np.full((n, C, 2), FAR)
         self.circ_r = np.zeros((n, C))
         self.circ_app = np.zeros((n, C), np.int64)
-        self.seg_a = np.full((n, E, 2), FAR)
-        self.seg_b = np.full((n, E, 2), FAR)
         self.seg_app = np.zeros((n, E), np.int64)
         self.seg_u0 = np.zeros((n, E))
         self.wall_a = np.full((n, S, 2), FAR)
         self.wall_b = np.full((n, S, 2), FAR)
         self.poly = np.broadcast_to(_far_polygon(V), (n, P, V, 2)).copy()
-        self.seg_ab = np.zeros((n, 2 * E, 2))
         self.seg_len = np.zeros((n, E))
         self.points = np.zeros((n, 2, 2 * E + C))
         self.seg_consts = np.zeros((n, E, 3))
         self.circ_r2 = np.zeros((n, C))
         self.circ_inf = np.zeros((n, C))
-        self.apps = np.zeros((n, A, N_PARAMS), np.float32)
         self.tex = np.zeros((n, A, N_DERIVED), np.float32)
         self.altitude = np.zeros(n)
-        self.ceiling = np.zeros(n)
 
     def _write(self, n: int, scene: Scene):
         C, E, S, P, V, A = self._sizes(scene)
@@ -305,9 +295,8 @@ class SceneBatch:
         self.circ_app[n] = 0
         self.circ_app[n, :C] = scene.circle_app
         a, b, app, u0 = scene.render_segments()
-        self.seg_a[n] = FAR
-        self.seg_b[n] = FAR
-        self.seg_a[n, :E], self.seg_b[n, :E] = a, b
+        ends = np.full((2, self.seg_len.shape[1], 2), FAR)             # A, B; padding FAR
+        ends[0, :E], ends[1, :E] = a, b
         self.seg_app[n] = 0
         self.seg_app[n, :E] = app
         self.seg_u0[n] = 0.0
@@ -318,18 +307,14 @@ class SceneBatch:
         self.poly[n] = _far_polygon(self.poly.shape[2])
         self.poly[n, :P, :V] = scene.poly_verts
         self.poly[n, :P, V:] = scene.poly_verts[:, -1:]
-        self.seg_ab[n] = np.concatenate([self.seg_a[n], self.seg_b[n]])
-        self.seg_len[n] = np.hypot(*(self.seg_b[n] - self.seg_a[n]).T)
-        self.points[n] = np.concatenate([self.seg_ab[n], self.circ_c[n]]).T
+        self.seg_len[n] = np.hypot(*(ends[1] - ends[0]).T)
+        self.points[n] = np.concatenate([ends[0], ends[1], self.circ_c[n]]).T
         self.seg_consts[n] = np.stack([self.seg_len[n], self.seg_u0[n], self.seg_app[n]], -1)
         self.circ_r2[n] = self.circ_r[n] * self.circ_r[n]
         self.circ_inf[n] = np.where(self.circ_r[n] > 0, 0.0, np.inf)
-        self.apps[n] = 0.0
-        self.apps[n, :A] = scene.appearances
         self.tex[n] = 0.0
         self.tex[n, :A] = derived_table(scene.appearances)
         self.altitude[n] = scene.altitude
-        self.ceiling[n] = scene.ceiling
         self.scenes[n] = scene
 
     def subset(self, idx) -> "SceneBatch":
@@ -356,6 +341,3 @@ class SceneBatch:
             for k, s in enumerate(self.scenes):
                 self._write(k, s)
         self._write(n, scene)
-
-
-__all__ = ["FAR", "Scene", "SceneBuilder", "SceneBatch", "point_in_polygon", "build_space"]

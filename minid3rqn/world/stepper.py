@@ -1,9 +1,7 @@
 """One step of m drones at once: fly the arc, check for collision, pay the reward.
 
-Every flight in the package is stepped here: the environments (``env.VecDroneEnv``, and
-``env.DroneEnv``, its one-flight view) and the Q-learning flights (``rl.flights.Flights``).
-What a flight observes afterwards (RGB and GT depth, or the Q-net's depth frames) is
-theirs; the step is this:
+Every flight in the package is stepped here (``env.VecDroneEnv``, ``env.DroneEnv`` and
+the Q-learning flights, ``rl.flights.Flights``); what it observes afterwards is theirs:
 
     1. fly: the chosen action (v, omega) is held for dt seconds along the exact arc
        (``kinematics.integrate_arc``), sampled at S equally spaced points no more than
@@ -18,9 +16,8 @@ theirs; the step is this:
        d_nearest, or -1 on collision: ``kinematics.paper_reward``).
 
 A reward function takes (d_nearest, collided) like the paper's, or also the yaw rate
-of the action flown, (d_nearest, collided, yaw_rate), to price turning (exercise 1);
-``call_reward`` tells the two apart. It is called once per step for all m flights, so
-it must work on arrays.
+of the action flown (exercise 1: to price turning); ``call_reward`` tells the two
+apart. It is called with arrays, one entry per flight.
 """
 from __future__ import annotations
 
@@ -97,7 +94,3 @@ def step_drones(poses, actions, chosen, scenes: SceneBatch, dt: float = ACTION_I
         raise ValueError(f"step_drones: reward_fn must return a number or an array of shape "
                          f"{d.shape} (one reward per flight); got shape {np.shape(r)}") from None
     return Moved(arcs[:, -1], d, collided, rewards)
-
-
-__all__ = ["step_drones", "Moved", "action_arcs", "call_reward", "accepts_yaw_rate",
-           "check_reward_fn"]

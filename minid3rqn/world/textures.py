@@ -78,9 +78,7 @@ def random_appearance(rng: np.random.Generator, hue_range=(0.0, 1.0), sat=(0.35,
     fine grain (value noise of 8-16 cm cells).
 
     Two scales, like real surfaces: the blocks give texture from afar, the grain up close
-    (a 40 cm block seen from 1.5 m covers a dozen pixels of flat colour, where
-    view synthesis has nothing to match); the anti-aliasing fade removes the grain beyond
-    a few metres, where it would be smaller than a pixel."""
+    (where a block covers pixels of flat colour that view synthesis cannot match)."""
     h = rng.uniform(*hue_range) % 1.0
     s, v = rng.uniform(*sat), rng.uniform(*val)
     c0 = hsv_to_rgb(h, s, v)
@@ -132,7 +130,6 @@ D_C0 = slice(10, 13)
 D_DC = slice(13, 16)
 D_WB, D_WN, D_GAIN = 16, 17, 18
 N_DERIVED = 19
-D_AMP_B, D_AMP_N = D_LB, D_LN      # rows the renderer overwrites with the faded weights
 
 
 def derived_table(apps: np.ndarray) -> np.ndarray:
@@ -161,18 +158,6 @@ def derived_table(apps: np.ndarray) -> np.ndarray:
     return d
 
 
-def fade(q, footprint):
-    """Faded pattern weights (a_b w_b, a_n w_n), a = clip((L / f - 1) / 2, 0, 1).
-
-    q: derived constants indexed by the D_ constants along the first axis, (D, ...);
-    footprint: (...) metres of surface covered by one pixel.
-    """
-    half = 0.5 / footprint
-    a_b = np.minimum(np.maximum(q[D_LB] * half - 0.5, 0.0), 1.0)
-    a_n = np.minimum(np.maximum(q[D_LN] * half - 0.5, 0.0), 1.0)
-    return a_b * q[D_WB], a_n * q[D_WN]
-
-
 # The lattice and the noise image minus 1/2 (the pattern reads B - 1/2 and N - 1/2); the
 # float32 subtraction done once per texel gives the same values as doing it per pixel.
 _LATTICE_CENTRED = _LATTICE_FLAT - np.float32(0.5)
@@ -183,22 +168,15 @@ _TEXEL_MASKS = np.array([LATTICE_SIZE - 1, (1 << NOISE_BITS) - 1], np.int32).res
 _ROW_SHIFTS = np.array([LATTICE_BITS, NOISE_BITS], np.int32).reshape(2, 1)
 
 
-def texel_coords(s, h, q) -> np.ndarray:
-    """The pattern's lattice coordinates of points (s, h), before rounding down:
-    (2, 2, ...) float32 [[s / su + o_x, h / sv + o_y], [s n + no_x, h n + no_y]] with
-    n the NOISE texels per metre (row 0 blocks, row 1 noise; column 0 along s, 1 along h).
-    The block column still lacks the stagger of odd rows (``pattern_from_coords``)."""
-    s, h = np.asarray(s, np.float32), np.asarray(h, np.float32)
-    return np.stack(np.broadcast_arrays(s * q[D_INV_SU] + q[D_OX], h * q[D_INV_SV] + q[D_OY],
-                                        s * q[D_INV_NS] + q[D_NOX], h * q[D_INV_NS] + q[D_NOY])
-                    ).reshape((2, 2) + np.shape(s * h))
-
-
 def pattern_from_coords(coords: np.ndarray, amp, stagger=None) -> np.ndarray:
-    """The pattern value p in [0, 1] from the lattice coordinates of ``texel_coords``.
+    """The pattern value p in [0, 1] of surface points from their lattice coordinates.
 
-    coords (2, 2, ...) float32, overwritten; amp (2, ...): the faded pattern weights
-    (a_b w_b, a_n w_n) of ``fade``; stagger (...) or None when every stagger is 0.
+    coords (2, 2, ...) float32, overwritten: [[s / su + o_x, h / sv + o_y],
+    [s n + no_x, h n + no_y]] for texture coordinates (s, h), n the NOISE texels per
+    metre (row 0 blocks, row 1 noise; column 0 along s, 1 along h; the constants are
+    the ``derived_table`` columns). amp (2, ...): the faded pattern weights (a_b w_b,
+    a_n w_n), a = clip((L / f - 1) / 2, 0, 1) for a pixel footprint of f metres (module
+    docstring). stagger (...) or None when every stagger is 0.
     Block row j = floor(y_b), column i = floor(x_b + stagger (j mod 2)); the noise texel
     is (floor(x_n), floor(y_n)) (its coordinates are positive, so truncation floors). Then
         p = 1/2 + a_b w_b (LATTICE[j, i] - 1/2) + a_n w_n (NOISE[y_n, x_n] - 1/2),
@@ -230,24 +208,7 @@ def pattern_from_coords(coords: np.ndarray, amp, stagger=None) -> np.ndarray:
     return p
 
 
-def pattern(s, h, q) -> np.ndarray:
-    """The pattern value p(s, h) in [0, 1] (module docstring).
-
-    s, h: (...) float32 texture coordinates; q: sequence indexed by the D_ constants of
-    arrays broadcastable to s: each point's derived constants, with the rows D_AMP_B and
-    D_AMP_N holding the faded pattern weights a_b w_b and a_n w_n (``fade``).
-    """
-    stagger = np.broadcast_to(q[D_STAGGER], np.shape(s * h)).astype(np.float32)
-    return pattern_from_coords(texel_coords(s, h, q), np.stack(np.broadcast_arrays(
-        q[D_AMP_B], q[D_AMP_N])).astype(np.float32), stagger)
-
-
 def wall_shade(n_dot_l) -> np.ndarray:
     """Half-Lambert shade of vertical surfaces, 0.6 + 0.4 (1 + n . l) / 2, from the cosine
     n . l between the unit surface normal and the light direction ``LIGHT``."""
     return 0.6 + 0.2 * (1.0 + np.asarray(n_dot_l))
-
-
-__all__ = ["N_PARAMS", "N_DERIVED", "FLOOR_ID", "CEILING_ID", "LATTICE", "NOISE", "LIGHT",
-           "make_appearance", "random_appearance", "hsv_to_rgb", "derived_table", "fade",
-           "pattern", "texel_coords", "pattern_from_coords", "wall_shade"]

@@ -1,7 +1,4 @@
-"""A top-down map of a world with the drone, its trajectory and its field of view (Pillow).
-
-The generic picture helpers (depth colour map, GIF writing) are in ``minid3rqn.viz``.
-"""
+"""A top-down map of a world with the drone, its trajectory and its field of view (Pillow)."""
 from __future__ import annotations
 
 import numpy as np
@@ -72,6 +69,3 @@ def topdown(scene: Scene, trajectory=None, pose=None, camera: Camera | None = No
         draw.line(px([(x, y), (x + 0.9 * np.cos(yaw), y + 0.9 * np.sin(yaw))]),
                   fill=(255, 60, 60), width=2)
     return img
-
-
-__all__ = ["topdown"]
