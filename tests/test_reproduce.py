@@ -47,7 +47,7 @@ def test_reproduce_quick_smoke(tmp_path):
     text = (tmp_path / "quick" / "results.md").read_text()
     assert "0.994" in text and "cannot show" in text and "python -m minid3rqn reproduce" in text
     stamp = {v: (agents / v / "model.npz").stat().st_mtime_ns for v in QUICK_FAMILY}
-    again = reproduce_quick(tmp_path, budget=budget)
+    again = reproduce_quick(tmp_path, budget=budget, workers=2)
     assert stamp == {v: (agents / v / "model.npz").stat().st_mtime_ns for v in QUICK_FAMILY}
     assert [r["rate"] for r in again["table5"]] == [r["rate"] for r in res["table5"]]
 

@@ -148,7 +148,7 @@ def _train_all(tasks: list, workers: int) -> list:
     """Train independent runs ((config, run_dir, depth_model) each), ``workers`` at a
     time in forked processes (one per core, no progress bars; the same runs as one after
     the other: each is fixed by its own seed)."""
-    if workers <= 1 or len(tasks) == 1 or "fork" not in mp.get_all_start_methods():
+    if workers <= 1 or len(tasks) <= 1 or "fork" not in mp.get_all_start_methods():
         return [_train_qnet(*t) for t in tasks]
     print(f"\n== {len(tasks)} runs, {min(workers, len(tasks))} at a time (no progress bars: "
           f"each prints a line per checkpoint): {', '.join(Path(t[1]).name for t in tasks)}",
