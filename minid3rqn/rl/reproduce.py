@@ -423,7 +423,11 @@ def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
         (out / "agent" / variant / "checkpoint.npz").unlink(missing_ok=True)
     models = [out / "agent" / v / "model.npz" for v in QUICK_FAMILY]
 
-    def fly(spec, scenario):
+    def fly(spec, scenario):         # Straight and Random read no depth: the same flights
+        if spec in ("straight", "random"):         # on GT depth, without the DispNet
+            cfg = EvalConfig(scenario=scenario, flights=flights, seed=TEST_WORLDS,
+                             workers=workers)
+            return evaluate_spec(spec, cfg, progress=False)[1]
         cfg = EvalConfig(scenario=scenario, flights=flights, seed=TEST_WORLDS, depth="pred",
                          workers=workers, depth_model=str(MODELS / f"depth_{scenario}.npz"))
         est = load_depth_estimator(cfg.depth_model)
