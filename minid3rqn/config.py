@@ -359,20 +359,22 @@ class _Existing(argparse.Action):
         setattr(namespace, self.dest, chosen)
 
 
-def add_existing_option(parser: argparse.ArgumentParser, resume: bool = True) -> None:
-    """The option of a command that writes a run folder (a file, with ``resume`` False)
-    saying what to do if it holds a run already: ``--resume`` it or ``--overwrite`` it
-    (one option, two spellings); without it such a folder (file) is refused
-    (``io.claim_run_folder``). ``args.existing``: None, "resume" or "overwrite"."""
-    if not resume:
+def add_existing_option(parser: argparse.ArgumentParser, grows: str | None = None) -> None:
+    """The option of a command that writes a run folder (a file, without ``grows``)
+    saying what to do if it holds a run already: ``--resume`` it (with the same settings
+    but ``grows``, which may be larger, and how often it logs and checkpoints) or
+    ``--overwrite`` it: one option, two spellings. Without it such a folder (file) is
+    refused (``io.claim_run_folder``). ``args.existing``: None, "resume" or "overwrite"."""
+    if grows is None:
         parser.add_argument("--overwrite", dest="existing", action="store_const",
                             const="overwrite", default=None,
                             help="replace the file if it exists (else it is refused)")
         return
     parser.add_argument("--resume", "--overwrite", dest="existing", action=_Existing, nargs=0,
                         default=None, help="if the folder holds a run: continue it from its "
-                        "checkpoint (--resume) or delete it and start afresh (--overwrite); "
-                        "without either, such a folder is refused")
+                        f"checkpoint with its settings ({grows} may grow) (--resume), or "
+                        "delete it and start afresh (--overwrite); without either, such a "
+                        "folder is refused")
 
 
 def command_line(cls, cfg, base=None, main: tuple | None = None) -> list[str]:

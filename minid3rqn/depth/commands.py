@@ -65,7 +65,7 @@ def add_arguments_collect(p: argparse.ArgumentParser) -> None:
     add_arguments(p, CollectConfig)
     p.add_argument("--out", default=None,
                    help="output .npz (default runs/depth/<scenario>/train.npz)")
-    add_existing_option(p, resume=False)
+    add_existing_option(p)
 
 
 def run_collect(args) -> int:
@@ -96,7 +96,7 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init-from", default=None,
                    help="fine-tune: start from this checkpoint or model file's DispNet "
                         "(e.g. minid3rqn/models/depth_basic.npz)")
-    add_existing_option(p)
+    add_existing_option(p, grows="--iterations")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 

@@ -46,7 +46,7 @@ def _run_options(p: argparse.ArgumentParser, out: str) -> None:
     p.add_argument("--depth-model", default=None,
                    help="DispNet .npz for --depth pred (default: the shipped one)")
     p.add_argument("--out", default=None, help=f"run folder (default {out})")
-    add_existing_option(p)
+    add_existing_option(p, grows="--steps")
     p.add_argument("--smoke", action="store_true", help="a few hundred steps (tests)")
 
 
