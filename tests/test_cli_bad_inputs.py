@@ -140,6 +140,8 @@ CASES = [
     ("train-depth --data {fx}/qnet.npz --dir d", "--data: '{fx}/qnet.npz' holds no frames"),
     ("train-depth --data {fx}/trunc.npz --dir d", "--data: '{fx}/trunc.npz' is not a readable"),
     ("train-depth --data x.txt --dir d", "--data: expected a .npz file"),
+    ("train-depth --scenario channel --data {fx}/frames.npz --dir d", "--data: "
+     "'{fx}/frames.npz' holds frames of basic, not channel"),
     ("train-depth --dir {fx}/afile", "--dir: '{fx}/afile' is a file"),
     ("train-depth --dir {fx}/drun", "--dir: '{fx}/drun' holds a run"),
     ("train-depth --dir {fx}/drun --resume --lr 0.001", "lr 0.0005 (now 0.001)"),
@@ -151,6 +153,8 @@ CASES = [
     ("eval-depth --model {fx}/qnet.npz", "--model: '{fx}/qnet.npz' is not a depth model"),
     ("eval-depth --scenario moon", "--scenario: invalid choice: 'moon'"),
     ("eval-depth --test-data {fx}/qnet.npz", "--test-data: '{fx}/qnet.npz' holds no frames"),
+    ("eval-depth --scenario corners --test-data {fx}/frames.npz", "--test-data: "
+     "'{fx}/frames.npz' holds frames of basic, not corners"),
     ("eval-depth --test-data {fx}/frames.npz --json {fx}/adir", "--json: '{fx}/adir' is a"),
     ("eval-depth --test-data {fx}/frames.npz --pictures p.txt", "--pictures: expected a .png"),
     ("eval-depth --test-data {fx}/frames.npz --pictures {fx}/afile/p.png",

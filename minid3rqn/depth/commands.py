@@ -45,8 +45,9 @@ def _options(args: argparse.Namespace, cls, other=None) -> argparse.Namespace:
 
 
 # -- collect -----------------------------------------------------------------------------
-def _frames_file(path, option: str) -> None:
-    """An existing file given as frames: one written by ``collect`` (UsageError if not)."""
+def _frames_file(path, option: str, scenario: str | None = None) -> None:
+    """An existing file given as frames: one written by ``collect`` (of ``scenario``, if
+    given: the one the command is about); UsageError if not."""
     import zipfile
 
     import numpy as np
@@ -59,6 +60,10 @@ def _frames_file(path, option: str) -> None:
         what = "is not a readable .npz file" if names is None else "holds no frames"
         raise UsageError(f"{option}: {str(path)!r} {what} (expected a file written by "
                          f"collect)")
+    filmed = (read_metadata(path) or {}).get("scenario")
+    if scenario and filmed and filmed != scenario:
+        raise UsageError(f"{option}: {str(path)!r} holds frames of {filmed}, not {scenario}; "
+                         f"give --scenario {filmed}")
 
 
 def add_arguments_collect(p: argparse.ArgumentParser) -> None:
@@ -131,7 +136,7 @@ def _check_frames(args, cfg: TrainConfig, data: CollectConfig, run_dir: Path) ->
         if not path.is_file():
             check_output(path, option, suffix=".npz")
             continue
-        _frames_file(path, option if given else "--dir")
+        _frames_file(path, option if given else "--dir", data.scenario)
         problem = None if given else other_frames(path, want)
         if problem and args.existing != "overwrite":
             raise UsageError(f"--dir: {problem}; give --overwrite to collect them anew, or "
@@ -211,8 +216,8 @@ def run_eval_depth(args) -> int:
         if out:
             check_output(out, option, suffix=suffix)
     path = Path(args.test_data or RUNS / data.scenario / "test.npz")
-    if path.is_file():
-        _frames_file(path, "--test-data")
+    if path.is_file():              # of the --scenario asked for, if one is
+        _frames_file(path, "--test-data", getattr(args, "cfg__scenario", None))
     else:
         check_output(path, "--test-data", suffix=".npz")
     try:
