@@ -36,6 +36,8 @@ CASES = [
     ("fly --model {fx}/depth.npz", "--model: '{fx}/depth.npz' is a depth model"),
     ("fly --model {fx}/trunc.npz", "--model: '{fx}/trunc.npz' is not a readable .npz"),
     ("fly --depth gt --flip-tta", "--flip-tta: averages the DispNet's disparity"),
+    ("fly --model {fx}/qnet.npz+{fx}/odd.npz", "--model: 'D3RQN' was trained with another "
+                                               "action table or camera"),
     ("fly --gif {fx}/afile/x.gif", "--gif: '{fx}/afile/x.gif' cannot be made"),
     ("fly --gif out.png", "--gif: expected a .gif file"),
     ("fly --gif " + str(MODELS / "x.gif"), "--gif: '" + str(MODELS / "x.gif") + "' is inside"),
@@ -75,6 +77,8 @@ CASES = [
     ("distil --smoke --teachers {fx}/qnet.npz+", "--teachers: expected Q-net .npz files"),
     ("distil --smoke --teachers {fx}/depth.npz", "--teachers: '{fx}/depth.npz' is a depth"),
     ("distil --smoke --teachers {fx}/nan.npz", "--teachers: '{fx}/nan.npz': weight"),
+    ("distil --smoke --teachers {fx}/odd.npz", "--teachers: '{fx}/odd.npz' was trained with "
+                                               "another action table or camera"),
     ("distil --smoke --teachers {fx}/qnet.npz --set init_widen=true", "--init-model"),
     ("distil --steps 0", "--steps: expected a number >= 1"),
     ("distil --set distil_kl=-1", "--set distil_kl: expected a number >= 0"),
@@ -91,6 +95,7 @@ CASES = [
     ("evaluate straight moon", "'moon' is not a Q-net file"),
     ("evaluate {fx}/nan.npz", "'{fx}/nan.npz': weight"),
     ("evaluate {fx}/trunc.npz", "'{fx}/trunc.npz' is not a readable .npz"),
+    ("evaluate straight {fx}/qnet.npz+{fx}/odd.npz", "was trained with another action table"),
     ("evaluate straight --flights 0", "--flights: expected a number >= 1"),
     ("evaluate straight --chunk 0", "--chunk: expected a number >= 1"),
     ("evaluate straight --workers 0", "--workers: expected a number >= 1"),
@@ -192,6 +197,9 @@ def _make_files(fx: Path) -> None:
     arrays[first] = arrays[first].copy()
     arrays[first].flat[0] = np.nan
     save_npz(fx / "nan.npz", arrays, meta)
+    arrays, meta = load_npz(fx / "qnet.npz")
+    meta["train_config"]["hfov_deg"] = 60.0                # a net of another camera
+    save_npz(fx / "odd.npz", arrays, meta)
     (fx / "trunc.npz").write_bytes((fx / "qnet.npz").read_bytes()[:5000])
     (fx / "afile").write_text("a file where a folder is meant")
     (fx / "adir").mkdir()

@@ -18,7 +18,7 @@ import numpy as np
 from ..config import (UsageError, add_arguments, add_existing_option, as_dict, flat_settings,
                       from_args)
 from ..io import append_jsonl, check_log, check_output, claim_run_folder, read_metadata
-from .models import depth_estimator_for, recorded_result, recorded_text
+from .models import actions_and_camera, depth_estimator_for, recorded_result, recorded_text
 
 RUNS = Path("runs")
 
@@ -157,7 +157,11 @@ def run_distil(args) -> int:
                          "--init-model")
     cam, actions = Camera(hfov_deg=t.hfov_deg), ACTIONS if t.actions is None else t.actions
     try:                                 # a bad teacher: say so before any training
-        load_teacher(cfg.teachers, (cam.height, cam.width), len(actions))
+        teacher = load_teacher(cfg.teachers, (cam.height, cam.width), len(actions))
+        flown, camera = actions_and_camera(teacher)
+        if camera != cam or flown.shape != np.shape(actions) or not np.allclose(flown, actions):
+            raise ValueError(f"{cfg.teachers!r} was trained with another action table or "
+                             f"camera than the student (--set actions, --set hfov_deg)")
     except ValueError as e:
         message = str(e).removeprefix("teachers: ")
         raise UsageError(f"--teachers: {message}") from None
@@ -202,7 +206,7 @@ def run_evaluate(args) -> int:
     est = _estimator(cfg.depth, cfg.depth_model, cfg.scenario, cfg.flip_tta)
     for spec in args.policies:         # every policy readable before the first flies
         try:
-            load_policy(spec)
+            actions_and_camera(load_policy(spec))
         except ValueError as e:
             raise UsageError(str(e)) from None
     for spec in args.policies:
@@ -237,6 +241,7 @@ def run_fly(args) -> int:
     check_output(cfg.gif, "--gif", suffix=".gif")
     try:
         policies = [load_qnet_policy(p) for p in parts]
+        actions_and_camera(*policies)          # nets flown together fly one setting
     except ValueError as e:
         raise UsageError(f"--model: {e}") from None
     depth = cfg.depth
