@@ -107,6 +107,9 @@ def main(argv=None) -> int:
         print(f"{name}: interrupted (Ctrl-C); files already written are whole",
               file=sys.stderr)
         return 130
+    except MemoryError as e:   # e.g. a replay larger than the machine's memory
+        print(f"{name}: not enough memory: {e}", file=sys.stderr)
+        return 1
     except OSError as e:       # the disk or the file system refused (full, read-only...)
         print(f"{name}: {e.strerror or e}: {e.filename or ''}".rstrip(": "),
               file=sys.stderr)

@@ -151,7 +151,6 @@ class Run:
         from ..world import Camera
         self.cfg, self.out = cfg, Path(out_dir)
         self.settings = {**flat_settings(as_dict(cfg)), **(settings or {})}
-        self.out.mkdir(parents=True, exist_ok=True)
         ss = np.random.SeedSequence(cfg.seed)
         net_seed, world_seed, act_seed, replay_seed = (int(s.generate_state(1)[0])
                                                        for s in ss.spawn(4))
@@ -174,6 +173,7 @@ class Run:
         self.notes: dict[str, list] = {}
         self.returns = np.zeros(cfg.n_envs)
         self.lengths = np.zeros(cfg.n_envs, dtype=np.int64)
+        self.out.mkdir(parents=True, exist_ok=True)      # made once the run could be
 
     def start(self) -> None:
         """Every flight takes off; its first frame opens its replay stream."""
