@@ -196,8 +196,9 @@ def check_output(path, option: str, folder: bool = False, suffix: str | None = N
         raise UsageError(f"{option}: expected a {suffix} file; got {str(path)!r}")
     if path.exists():
         if path.is_dir() != folder:
-            raise UsageError(f"{option}: {str(path)!r} is a {'folder' if path.is_dir() else 'file'}"
-                             f"; expected {'a folder' if folder else 'a file'}")
+            kind = "folder" if path.is_dir() else "file"
+            raise UsageError(f"{option}: {str(path)!r} is a {kind}; expected "
+                             f"{'a folder' if folder else 'a file'}")
         if not os.access(path, os.W_OK):
             raise UsageError(f"{option}: {str(path)!r} is not writable")
         return path

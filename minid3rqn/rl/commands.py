@@ -57,6 +57,10 @@ def _depth_file(depth: str, depth_model, scenario: str) -> str:
                                         .resolve())
 
 
+def _resumes(args, out: Path) -> bool:
+    return args.existing == "resume" and (out / "checkpoint.npz").is_file()
+
+
 def _check_init_model(t, widen: bool = False) -> None:
     """--init-model: a finite Q-net file of the run's network (with ``widen``, its LSTM
     may be narrower: it is grown)."""
@@ -125,7 +129,8 @@ def run_train_agent(args) -> int:
     name = f"{cfg.variant}_{cfg.scenario}_{cfg.depth}_s{cfg.seed}"
     out = Path(args.out) if args.out else RUNS / "agent" / (("smoke_" if args.smoke else "") + name)
     est = _estimator(cfg.depth, args.depth_model, cfg.scenario)
-    _check_init_model(cfg)
+    if not _resumes(args, out):          # a resumed run starts from its checkpoint instead
+        _check_init_model(cfg)
     depth_file = _depth_file(cfg.depth, args.depth_model, cfg.scenario)
     how = _claim(out, args, cfg, cfg, depth_file)
     if how == "finished":
@@ -168,17 +173,15 @@ def run_distil(args) -> int:
     out = Path(args.out) if args.out else \
         RUNS / "distil" / (("smoke_" if args.smoke else "") + f"{t.scenario}_{t.depth}_s{t.seed}")
     est = _estimator(t.depth, args.depth_model, t.scenario)
-    _check_init_model(t, widen=cfg.init_widen)
+    if not _resumes(args, out):
+        _check_init_model(t, widen=cfg.init_widen)
     depth_file = _depth_file(t.depth, args.depth_model, t.scenario)
     how = _claim(out, args, cfg, t, depth_file)
     if how == "finished":
         return 0
     t0 = time.time()
-    try:
-        run = distil(cfg, out, est, progress=_progress(), resume=how == "resume",
-                     settings={"depth_model": depth_file})
-    except ValueError as e:      # the teacher and the student's actions (mirror_augment)
-        raise UsageError(str(e)) from None
+    run = distil(cfg, out, est, progress=_progress(), resume=how == "resume",
+                 settings={"depth_model": depth_file})
     return _trained(run, command_for(cfg, out, args.depth_model), args.depth_model, t0)
 
 
