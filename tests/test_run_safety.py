@@ -222,3 +222,25 @@ def test_an_evaluation_record_gives_its_chunk_and_its_command_gives_it_again(tmp
     assert six["world_seeds"] != twelve["world_seeds"] and "--chunk 6" in six["command"]
     again = flown(shlex.split(six["command"])[4:], "again.jsonl")
     assert {**again, "seconds": 0} == {**six, "seconds": 0}
+
+
+def test_frames_collected_with_other_settings_are_not_read_as_the_runs_own(tmp_path,
+                                                                          monkeypatch, capsys):
+    """A run folder's train.npz, or eval-depth's default held-out file, collected with other
+    settings than the command's: refused, naming them (train-depth --overwrite collects
+    them anew)."""
+    from minid3rqn.depth.data import CollectConfig, collect_sequence
+    monkeypatch.chdir(tmp_path)
+    collect_sequence(CollectConfig(frames=20, frames_per_flight=10, seed=1000),
+                     tmp_path / "runs" / "depth" / "basic" / "test.npz", progress=False)
+    assert main(["eval-depth"]) == 2
+    err = capsys.readouterr().err
+    assert "holds frames collected with other settings: frames 20 (now 500)" in err
+    collect_sequence(CollectConfig(frames=20, frames_per_flight=10), tmp_path / "d" /
+                     "train.npz", progress=False)
+    small = ["train-depth", "--frames", "30", "--iterations", "1", "--set", "test_frames=12",
+             "--set", "eval_every=0", "--quiet", "--dir", str(tmp_path / "d")]
+    assert main(small) == 2
+    assert "frames 20 (now 30)" in capsys.readouterr().err
+    assert main([*small, "--overwrite"]) == 0
+    assert read_metadata(tmp_path / "d" / "train.npz")["frames"] == 30

@@ -218,6 +218,9 @@ def run_eval_depth(args) -> int:
     path = Path(args.test_data or RUNS / data.scenario / "test.npz")
     if path.is_file():              # of the --scenario asked for, if one is
         _frames_file(path, "--test-data", getattr(args, "cfg__scenario", None))
+        problem = None if args.test_data else other_frames(path, held_out(data))
+        if problem:                 # the default file: train-depth --seed 0's held-out
+            raise UsageError(f"--test-data: {problem}; give --test-data FILE")
     else:
         check_output(path, "--test-data", suffix=".npz")
     try:
