@@ -2,6 +2,10 @@
 
 Each command lives in the module that does the work; this file only wires them up,
 importing a command's module when that command runs (so ``--help`` is instant).
+
+A bad input is one line on stderr naming the option or the file (exit status 2), never a
+traceback; Ctrl-C in a training loop saves the run's checkpoint and prints the command
+that continues it (exit status 130).
 """
 from __future__ import annotations
 
