@@ -157,7 +157,8 @@ def _claim_depth_run(args, cfg: TrainConfig, run_dir: Path) -> str:
         check_resume(meta, settings, run_dir / "checkpoint.npz")
     except ValueError as e:
         raise UsageError(f"--resume: {str(e).removeprefix('resume: ')}") from None
-    if meta["iteration"] >= cfg.iterations and (run_dir / "results.json").is_file():
+    if meta["iteration"] >= cfg.iterations and all((run_dir / name).is_file()
+                                                   for name in ("model.npz", "results.json")):
         print(f"the run in {str(run_dir)!r} has finished ({meta['iteration']} of "
               f"{cfg.iterations} iterations); nothing to do (--resume with more "
               f"--iterations trains it on)", file=sys.stderr)

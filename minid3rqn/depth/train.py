@@ -338,7 +338,8 @@ def train_depth(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
     collected there with ``data`` when it does not exist; the held-out frames likewise
     from ``test_file`` (default ``run_dir/test.npz``), else ``cfg.test_frames`` frames
     of ``held_out(data)``. ``init_from``: a checkpoint or model file to fine-tune
-    (ignored when a checkpoint is resumed, with ``resume``). ``run_dir`` gets
+    (ignored when a checkpoint is resumed, with ``resume``; a resumed run that has
+    finished is left as it is). ``run_dir`` gets
     checkpoint.npz, curve.csv/.png (the held-out check every ``cfg.eval_every``
     iterations), model.npz, results.json (the model file's metadata: the configs, the
     ``train-depth`` and ``collect`` commands that reproduce it, the held-out results)
@@ -354,6 +355,9 @@ def train_depth(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
     t_data = time.time() - t0
     trainer = Trainer(train, cfg, checkpoint=run_dir / "checkpoint.npz", resume=resume,
                       settings={"data": str(train_path.resolve())})
+    done = [run_dir / "model.npz", run_dir / "results.json"]
+    if trainer.iteration >= cfg.iterations and all(p.is_file() for p in done):
+        return done[0]                   # a finished run: its model and results stand
     if trainer.iteration:
         print(f"train-depth: resuming at iteration {trainer.iteration}")
     elif init_from:
