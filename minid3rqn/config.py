@@ -325,6 +325,58 @@ def as_dict(cfg) -> dict:
     return out
 
 
+def flat_settings(values: dict) -> dict:
+    """A config's settings, as ``as_dict`` gives them (nested configs as dicts), by their
+    own names: {name: value} (a name is unique across nested configs, as ``--set`` needs)."""
+    out = {}
+    for name, value in values.items():
+        out.update(flat_settings(value) if isinstance(value, dict) else {name: value})
+    return out
+
+
+def _shown(value) -> str:
+    if isinstance(value, list):
+        return ",".join(map(str, value))
+    return "''" if value == "" else str(value).lower() if value is None else str(value)
+
+
+def changed_settings(saved: dict, now: dict, may_change=()) -> list[str]:
+    """The settings that ``now`` gives another value than ``saved`` (both flat, as
+    ``flat_settings`` gives), but those named in ``may_change``: "name SAVED (now NOW)"
+    each. A setting one of them lacks (made before it existed) is not compared."""
+    return [f"{name} {_shown(saved[name])} (now {_shown(value)})"
+            for name, value in now.items()
+            if name in saved and name not in may_change and saved[name] != value]
+
+
+class _Existing(argparse.Action):
+    """--resume or --overwrite: ``args.existing`` is "resume" or "overwrite" (one only)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        chosen = option_string.lstrip("-")
+        if getattr(namespace, self.dest) not in (None, chosen):
+            parser.error("--resume and --overwrite: give one of them")
+        setattr(namespace, self.dest, chosen)
+
+
+def add_existing_option(parser: argparse.ArgumentParser, grows: str | None = None) -> None:
+    """The option of a command that writes a run folder (a file, without ``grows``)
+    saying what to do if it holds a run already: ``--resume`` it (with the same settings
+    but ``grows``, which may be larger, and how often it logs and checkpoints) or
+    ``--overwrite`` it: one option, two spellings. Without it such a folder (file) is
+    refused (``io.claim_run_folder``). ``args.existing``: None, "resume" or "overwrite"."""
+    if grows is None:
+        parser.add_argument("--overwrite", dest="existing", action="store_const",
+                            const="overwrite", default=None,
+                            help="replace the file if it exists (else it is refused)")
+        return
+    parser.add_argument("--resume", "--overwrite", dest="existing", action=_Existing, nargs=0,
+                        default=None, help="if the folder holds a run: continue it from its "
+                        f"checkpoint with its settings ({grows} may grow) (--resume), or "
+                        "delete it and start afresh (--overwrite); without either, such a "
+                        "folder is refused")
+
+
 def command_line(cls, cfg, base=None, main: tuple | None = None) -> list[str]:
     """The options that give ``cfg`` from ``base`` (default ``cls()``): what a model
     file records, so its command reproduces it."""
@@ -348,4 +400,5 @@ def command_line(cls, cfg, base=None, main: tuple | None = None) -> list[str]:
 
 __all__ = ["setting", "validate", "ConfigError", "UsageError", "add_arguments",
            "from_args", "build", "as_dict", "command_line", "at_least", "between",
-           "positive", "one_of", "all_at_least", "flag"]
+           "positive", "one_of", "all_at_least", "flag", "flat_settings", "changed_settings",
+           "add_existing_option"]

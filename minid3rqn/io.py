@@ -1,5 +1,6 @@
 """Files on disk: ``.npz`` written atomically, read without pickle; JSON lines
-appended whole.
+appended whole; run folders and output paths checked before a command works; a
+training loop stopped by Ctrl-C at the end of a step.
 
 Atomic: the arrays go to a temporary file in the same folder, which is then renamed
 over the target; a crash mid-write leaves the old file intact, never half a file. A
@@ -10,7 +11,10 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import sys
 import tempfile
+import threading
 import zipfile
 from pathlib import Path
 
@@ -85,6 +89,32 @@ def load_npz(path) -> tuple[dict[str, np.ndarray], dict | None]:
                          f"written by minid3rqn): {e}") from None
 
 
+def read_metadata(path) -> dict | None:
+    """The metadata of an .npz written by ``save_npz``, without reading its arrays."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{str(path)!r} is no file; expected an .npz file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if "__metadata__" not in data.files:
+                return None
+            return json.loads(str(data["__metadata__"]))
+    except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as e:
+        raise ValueError(f"{str(path)!r} is not a readable .npz file (truncated, or not "
+                         f"written by minid3rqn): {e}") from None
+
+
+def _last_line_problem(path: Path) -> str | None:
+    with open(path, "rb") as f:
+        size = f.seek(0, os.SEEK_END)
+        if size:
+            f.seek(size - 1)
+            if f.read(1) != b"\n":
+                return (f"{str(path)!r}: its last line is incomplete; repair the file before "
+                        f"appending to it")
+    return None
+
+
 def append_jsonl(path, record: dict) -> None:
     """Append ``record`` as one JSON line to ``path``, whole or not at all.
 
@@ -93,13 +123,11 @@ def append_jsonl(path, record: dict) -> None:
     line is incomplete is refused rather than extended."""
     path = Path(path)
     line = (json.dumps(record) + "\n").encode()
-    with open(path, "ab+") as f:
+    problem = _last_line_problem(path) if path.is_file() else None
+    if problem:
+        raise ValueError(problem)
+    with open(path, "ab") as f:
         size = f.seek(0, os.SEEK_END)
-        if size:
-            f.seek(size - 1)
-            if f.read(1) != b"\n":
-                raise ValueError(f"{str(path)!r}: its last line is incomplete; repair the "
-                                 f"file before appending to it")
         try:
             f.write(line)
             f.flush()
@@ -145,6 +173,118 @@ def machine() -> dict:
     import platform
     return {"numpy": np.__version__, "blas_core": blas_core(),
             "python": platform.python_version(), "platform": platform.machine()}
+
+
+# -- output paths and run folders, checked before a command works ---------------------
+# A folder holds a run when it has one of these: a checkpoint, or the model it wrote.
+RUN_MARKS = ("checkpoint.npz", "model.npz")
+
+
+def check_output(path, option: str, folder: bool = False, suffix: str | None = None) -> Path:
+    """Check, before any work, that ``path`` (given with ``option``) can be written: a
+    file (a folder, with ``folder``) outside ``minid3rqn/models`` (the shipped models:
+    ``rl.models.ship`` writes there), not a folder where a file is meant or the other way
+    round, ending in ``suffix`` if given, in a folder that exists or can be made and is
+    writable. Creates nothing; a UsageError naming ``option`` otherwise."""
+    from .config import UsageError
+    path = Path(path)
+    where = path.resolve()
+    if where == MODELS or MODELS in where.parents:
+        raise UsageError(f"{option}: {str(path)!r} is inside minid3rqn/models, which holds "
+                         f"the shipped models; write it elsewhere (e.g. under runs/)")
+    if suffix and path.suffix != suffix:
+        raise UsageError(f"{option}: expected a {suffix} file; got {str(path)!r}")
+    if path.exists():
+        if path.is_dir() != folder:
+            kind = "folder" if path.is_dir() else "file"
+            raise UsageError(f"{option}: {str(path)!r} is a {kind}; expected "
+                             f"{'a folder' if folder else 'a file'}")
+        if not os.access(path, os.W_OK):
+            raise UsageError(f"{option}: {str(path)!r} is not writable")
+        return path
+    parent = where.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise UsageError(f"{option}: {str(path)!r} cannot be made: {str(parent)!r} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UsageError(f"{option}: {str(path)!r} cannot be made: {str(parent)!r} is not "
+                         f"writable")
+    return path
+
+
+def check_log(path, option: str) -> Path:
+    """``check_output`` for a JSON-lines log that records are appended to: also refused if
+    its last line is incomplete (``append_jsonl`` would refuse it after the work)."""
+    from .config import UsageError
+    path = check_output(path, option)
+    problem = _last_line_problem(path) if path.is_file() else None
+    if problem:
+        raise UsageError(f"{option}: {problem}")
+    return path
+
+
+def claim_run_folder(folder, existing: str | None, option: str,
+                     outputs: tuple = RUN_MARKS) -> bool:
+    """Check, before a training command works, that it may write its run into ``folder``
+    (given with ``option``); returns True if it continues the run there.
+
+    A folder that holds a run (``RUN_MARKS``) is written to only by an explicit choice:
+    ``existing`` "resume" continues the run from its checkpoint; "overwrite" deletes the
+    run's files (``outputs``) and starts afresh. Without either, a UsageError names the
+    folder and both choices: nothing is lost by a command run twice."""
+    from .config import UsageError
+    folder = check_output(folder, option, folder=True)
+    held = [name for name in RUN_MARKS if (folder / name).is_file()]
+    if not held:
+        if existing == "resume":
+            print(f"--resume: no run in {str(folder)!r} yet; starting it", file=sys.stderr)
+        return False
+    if existing is None:
+        raise UsageError(f"{option}: {str(folder)!r} holds a run ({', '.join(held)}); give "
+                         f"--resume to continue it or --overwrite to start it afresh")
+    if existing == "overwrite":
+        for name in outputs:
+            (folder / name).unlink(missing_ok=True)
+        return False
+    if "checkpoint.npz" not in held:
+        raise UsageError(f"--resume: {str(folder)!r} holds no checkpoint.npz to continue "
+                         f"from; give --overwrite to start the run afresh")
+    return True
+
+
+# -- Ctrl-C in a training loop ----------------------------------------------------------
+class RunStopped(KeyboardInterrupt):
+    """Ctrl-C stopped a training loop at the end of a step, after it saved its
+    checkpoint; the message says how far the run got and where its checkpoint is."""
+
+
+class StopRequest:
+    """``with StopRequest() as stop:`` around a training loop: Ctrl-C (SIGINT) sets
+    ``stop.requested`` instead of interrupting, so the loop ends its step, saves its
+    checkpoint and raises ``RunStopped``; a second Ctrl-C interrupts at once. Outside
+    the main thread (no signal handler can be set there) Ctrl-C interrupts as usual."""
+
+    def __init__(self):
+        self.requested = False
+        self._old = self._installed = None
+
+    def _handle(self, signum, frame):
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __enter__(self) -> "StopRequest":
+        self._installed = threading.current_thread() is threading.main_thread()
+        if self._installed:
+            self._old = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        if self._installed:     # None: a handler set outside Python; Python's own then
+            signal.signal(signal.SIGINT, self._old if self._old is not None
+                          else signal.default_int_handler)
+        return False
 
 
 # The shipped model files (minid3rqn/models), found from any working directory.

@@ -47,10 +47,16 @@ def test_collect_train_eval_smoke(tmp_path, capsys):
     assert load_sequence(run / "train.npz").meta["seed"] == 3          # the run's seed
     assert load_sequence(run / "test.npz").meta["seed"] == 1003        # other worlds
     assert meta["machine"]["numpy"] == np.__version__ and meta["machine"]["blas_core"]
-    # resume: a finished run resumes at its last iteration and does no more work
+    # resume: a finished run does no more work and leaves its files as they are; with
+    # more iterations it trains on from its last one
+    written = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
     assert _run(["train-depth", *SMOKE, "--seed", "3", "--resume", "--dir", str(run)]) == 0
+    assert "has finished (3 of 3 iterations); nothing to do" in capsys.readouterr().err
+    assert {p.name: p.stat().st_mtime_ns for p in run.iterdir()} == written
+    assert _run(["train-depth", *SMOKE, "--iterations", "4", "--seed", "3", "--resume",
+                 "--dir", str(run)]) == 0
     assert "resuming at iteration 3" in capsys.readouterr().out
-    assert DepthEstimator.load(run / "checkpoint.npz").meta["iteration"] == 3
+    assert DepthEstimator.load(run / "checkpoint.npz").meta["iteration"] == 4
     for extra in ([], ["--flip-tta"], ["--pictures", str(tmp_path / "p.png")]):
         assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
                      str(run / "test.npz"), "--json", str(tmp_path / "m.json"), *extra]) == 0

@@ -69,7 +69,7 @@ def test_training_smoke_and_exact_resume(tmp_path):
         np.testing.assert_array_equal(p, q)
     assert (tmp_path / "a" / "curve.csv").exists() and (tmp_path / "a" / "curve.png").exists()
     assert a.curve == [{**row, "seconds": r["seconds"]} for row, r in zip(b.curve, a.curve)]
-    with pytest.raises(ValueError, match=r"other settings \(hidden\)"):
+    with pytest.raises(ValueError, match=r"other settings: hidden 16 \(now 8\)"):
         train(TrainConfig(**{**SMALL, "hidden": 8}), tmp_path / "a", progress=False,
               resume=True)
 

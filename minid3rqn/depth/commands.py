@@ -17,14 +17,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import fields
 from pathlib import Path
 
-from ..config import UsageError, add_arguments, from_args, setting_names
-from ..io import MODELS
+from ..config import (UsageError, add_arguments, add_existing_option, as_dict, flat_settings,
+                      from_args, setting_names)
+from ..io import MODELS, check_output, claim_run_folder, read_metadata
 from .data import CollectConfig, collect_sequence, held_out, load_sequence
-from .train import TrainConfig, train_depth
+from .train import TrainConfig, check_resume, other_frames, train_depth
 
 RUNS = Path("runs/depth")
 
@@ -43,15 +45,39 @@ def _options(args: argparse.Namespace, cls, other=None) -> argparse.Namespace:
 
 
 # -- collect -----------------------------------------------------------------------------
+def _frames_file(path, option: str, scenario: str | None = None) -> None:
+    """An existing file given as frames: one written by ``collect`` (of ``scenario``, if
+    given: the one the command is about); UsageError if not."""
+    import zipfile
+
+    import numpy as np
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            names = set(data.files)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+        names = None
+    if names is None or not {"rgb", "flight", "K"} <= names:
+        what = "is not a readable .npz file" if names is None else "holds no frames"
+        raise UsageError(f"{option}: {str(path)!r} {what} (expected a file written by "
+                         f"collect)")
+    filmed = (read_metadata(path) or {}).get("scenario")
+    if scenario and filmed and filmed != scenario:
+        raise UsageError(f"{option}: {str(path)!r} holds frames of {filmed}, not {scenario}; "
+                         f"give --scenario {filmed}")
+
+
 def add_arguments_collect(p: argparse.ArgumentParser) -> None:
     add_arguments(p, CollectConfig)
     p.add_argument("--out", default=None,
                    help="output .npz (default runs/depth/<scenario>/train.npz)")
+    add_existing_option(p)
 
 
 def run_collect(args) -> int:
     cfg = from_args(CollectConfig, args)
-    out = Path(args.out or RUNS / cfg.scenario / "train.npz")
+    out = check_output(args.out or RUNS / cfg.scenario / "train.npz", "--out", suffix=".npz")
+    if out.exists() and args.existing != "overwrite":
+        raise UsageError(f"--out: {str(out)!r} exists; give --overwrite to replace it")
     t0 = time.time()
     seq = collect_sequence(cfg, out)
     print(f"collect: {len(seq)} frames in {int(seq.flight.max()) + 1} flights -> {out} "
@@ -75,19 +101,86 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init-from", default=None,
                    help="fine-tune: start from this checkpoint or model file's DispNet "
                         "(e.g. minid3rqn/models/depth_basic.npz)")
-    p.add_argument("--resume", action="store_true",
-                   help="continue from the folder's checkpoint.npz if present")
+    add_existing_option(p, grows="--iterations")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+# What a train-depth run writes in its folder (--overwrite deletes them; the frames stay)
+DEPTH_OUTPUTS = ("checkpoint.npz", "model.npz", "results.json", "pictures.png", "curve.csv",
+                 "curve.png")
+
+
+def _check_init_from(path) -> None:
+    """--init-from: a depth model file or a train-depth checkpoint."""
+    if not Path(path).is_file():
+        raise UsageError(f"--init-from: no file {path!r}")
+    try:
+        meta = read_metadata(path) or {}
+    except ValueError as e:
+        raise UsageError(f"--init-from: {e}") from None
+    if "dispnet" not in meta and not ("config" in meta and "iteration" in meta):
+        raise UsageError(f"--init-from: {path!r} is neither a depth model nor a train-depth "
+                         f"checkpoint")
+
+
+def _check_frames(args, cfg: TrainConfig, data: CollectConfig, run_dir: Path) -> list:
+    """The frames a run reads: given files hold frames, or can be made there; the run's
+    own files (in --dir) hold the frames of these settings, or (with --overwrite) are
+    returned, to be deleted and collected anew."""
+    stale = []
+    for option, given, default, want in (
+            ("--data", args.data, run_dir / "train.npz", data),
+            ("--test-data", args.test_data, run_dir / "test.npz",
+             held_out(data, cfg.test_frames))):
+        path = Path(given or default)
+        if not path.is_file():
+            check_output(path, option, suffix=".npz")
+            continue
+        _frames_file(path, option if given else "--dir", data.scenario)
+        problem = None if given else other_frames(path, want)
+        if problem and args.existing != "overwrite":
+            raise UsageError(f"--dir: {problem}; give --overwrite to collect them anew, or "
+                             f"{option} FILE")
+        stale += [path] if problem else []
+    return stale
+
+
+def _claim_depth_run(args, cfg: TrainConfig, run_dir: Path) -> str:
+    """``io.claim_run_folder`` for --dir; with --resume, the checkpoint must be of these
+    settings. Returns "new", "resume" or "finished" (nothing to do; said on stderr)."""
+    if not claim_run_folder(run_dir, args.existing, "--dir", DEPTH_OUTPUTS):
+        return "new"
+    train = Path(args.data or run_dir / "train.npz").resolve()
+    settings = {**flat_settings(as_dict(cfg)), "data": str(train)}
+    try:
+        meta = read_metadata(run_dir / "checkpoint.npz")
+        check_resume(meta, settings, run_dir / "checkpoint.npz")
+    except ValueError as e:
+        raise UsageError(f"--resume: {str(e).removeprefix('resume: ')}") from None
+    if meta["iteration"] >= cfg.iterations and all((run_dir / name).is_file()
+                                                   for name in ("model.npz", "results.json")):
+        print(f"the run in {str(run_dir)!r} has finished ({meta['iteration']} of "
+              f"{cfg.iterations} iterations); nothing to do (--resume with more "
+              f"--iterations trains it on)", file=sys.stderr)
+        return "finished"
+    return "resume"
 
 
 def run_train_depth(args) -> int:
     cfg = from_args(TrainConfig, _options(args, TrainConfig, CollectConfig))
     data = from_args(CollectConfig, _options(args, CollectConfig, TrainConfig), seed=cfg.seed)
-    if args.init_from and not Path(args.init_from).is_file():
-        raise UsageError(f"--init-from: no file {args.init_from!r}")
+    if args.init_from:
+        _check_init_from(args.init_from)
     run_dir = Path(args.dir or RUNS / data.scenario)
+    check_output(run_dir, "--dir", folder=True)
+    stale = _check_frames(args, cfg, data, run_dir)
+    how = _claim_depth_run(args, cfg, run_dir)
+    if how == "finished":
+        return 0
+    for path in stale:                   # --overwrite: frames of other settings go
+        path.unlink()
     train_depth(cfg, data, run_dir, args.data, args.test_data, args.init_from,
-                resume=args.resume, progress=not args.quiet)
+                resume=how == "resume", progress=not args.quiet)
     meta = json.loads((run_dir / "results.json").read_text())
     print(json.dumps({"scenario": data.scenario, "seed": cfg.seed,
                       "train_seconds": meta["train_seconds"],
@@ -119,8 +212,22 @@ def run_eval_depth(args) -> int:
     if not Path(args.model).is_file():
         raise UsageError(f"--model: no file {args.model!r}")
     data = from_args(CollectConfig, _options(args, CollectConfig))
-    estimator = DepthEstimator.load(args.model, flip=args.flip_tta)
+    for option, out, suffix in (("--json", args.json, None),
+                                ("--pictures", args.pictures, ".png")):
+        if out:
+            check_output(out, option, suffix=suffix)
     path = Path(args.test_data or RUNS / data.scenario / "test.npz")
+    if path.is_file():              # of the --scenario asked for, if one is
+        _frames_file(path, "--test-data", getattr(args, "cfg__scenario", None))
+        problem = None if args.test_data else other_frames(path, held_out(data))
+        if problem:                 # the default file: train-depth --seed 0's held-out
+            raise UsageError(f"--test-data: {problem}; give --test-data FILE")
+    else:
+        check_output(path, "--test-data", suffix=".npz")
+    try:
+        estimator = DepthEstimator.load(args.model, flip=args.flip_tta)
+    except ValueError as e:
+        raise UsageError(f"--model: {str(e).removeprefix('DepthEstimator.load: ')}") from None
     test = load_sequence(path) if path.is_file() else collect_sequence(held_out(data), path)
     t0 = time.time()
     results = evaluate(estimator, test)

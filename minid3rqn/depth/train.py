@@ -40,8 +40,9 @@ import numpy as np
 
 from .. import autograd as ag
 from ..autograd.optim import Adam
-from ..config import as_dict, at_least, command_line, positive, setting, validate
-from ..io import load_npz, machine, save_npz
+from ..config import (as_dict, at_least, changed_settings, command_line, flat_settings,
+                      positive, setting, validate)
+from ..io import RunStopped, StopRequest, load_npz, machine, read_metadata, save_npz
 from ..nets.dispnet import DispNet
 from ..nets.posenet import PoseNet
 from ..world.geometry import relative_transform
@@ -105,10 +106,12 @@ class Trainer:
     """Holds the networks, the optimizer and the sampler; ``run`` trains to the end.
 
     ``photometric_error``: (pred, target) -> (N, 1, H, W), the per-pixel error of the
-    loss (default: the configured SSIM + L1, ``losses.photometric_error``)."""
+    loss (default: the configured SSIM + L1, ``losses.photometric_error``). ``settings``:
+    what a resumed run must share with its checkpoint besides ``cfg``'s settings ({name:
+    value}, e.g. the frames' file)."""
 
     def __init__(self, sequence: Sequence, cfg: TrainConfig, checkpoint=None,
-                 resume: bool = False, photometric_error=None):
+                 resume: bool = False, photometric_error=None, settings: dict | None = None):
         if not isinstance(sequence, Sequence):
             raise TypeError(f"Trainer: sequence must be a data.Sequence; got "
                             f"{type(sequence).__name__}")
@@ -128,6 +131,7 @@ class Trainer:
         self.iteration = 0
         self.history: list[dict] = []
         self.checkpoint = Path(checkpoint) if checkpoint else None
+        self.settings = {**flat_settings(as_dict(cfg)), **(settings or {})}
         if resume and self.checkpoint and self.checkpoint.is_file():
             self.load_checkpoint(self.checkpoint)
 
@@ -197,7 +201,9 @@ class Trainer:
         return info
 
     def run(self, progress: bool = True, callback=None) -> list[dict]:
-        """Train to ``cfg.iterations``; ``callback(trainer, row)`` after each log row."""
+        """Train to ``cfg.iterations``; ``callback(trainer, row)`` after each log row.
+        Ctrl-C stops at the end of an iteration: the checkpoint is saved (if the trainer
+        has one), then ``io.RunStopped`` is raised."""
         cfg = self.cfg
         bar = None
         if progress:
@@ -205,25 +211,33 @@ class Trainer:
             bar = tqdm(total=cfg.iterations, initial=self.iteration, desc="train-depth",
                        unit="it", dynamic_ncols=True)
         window, t0 = [], time.time()
-        while self.iteration < cfg.iterations:
-            info = self.step()
-            window.append(info)
+        with StopRequest() as stop:     # Ctrl-C: stop at the end of an iteration
+            while self.iteration < cfg.iterations and not stop.requested:
+                info = self.step()
+                window.append(info)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(loss=f"{info['loss']:.4f}", photo=f"{info['photo']:.4f}")
+                if self.iteration % cfg.log_every == 0 or self.iteration == cfg.iterations:
+                    row = {k: float(np.mean([w[k] for w in window])) for k in window[0]}
+                    row["iteration"] = self.iteration
+                    row["seconds"] = time.time() - t0
+                    self.history.append(row)
+                    window = []
+                    if callback is not None:
+                        callback(self, row)
+                if self.checkpoint and (self.iteration % cfg.checkpoint_every == 0
+                                        or self.iteration == cfg.iterations):
+                    self.save_checkpoint(self.checkpoint)
             if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{info['loss']:.4f}", photo=f"{info['photo']:.4f}")
-            if self.iteration % cfg.log_every == 0 or self.iteration == cfg.iterations:
-                row = {k: float(np.mean([w[k] for w in window])) for k in window[0]}
-                row["iteration"] = self.iteration
-                row["seconds"] = time.time() - t0
-                self.history.append(row)
-                window = []
-                if callback is not None:
-                    callback(self, row)
-            if self.checkpoint and (self.iteration % cfg.checkpoint_every == 0
-                                    or self.iteration == cfg.iterations):
+                bar.close()
+            if stop.requested and self.checkpoint:
                 self.save_checkpoint(self.checkpoint)
-        if bar is not None:
-            bar.close()
+        if self.iteration < cfg.iterations:
+            if not self.checkpoint:
+                raise KeyboardInterrupt
+            raise RunStopped(f"stopped at iteration {self.iteration} of {cfg.iterations}; "
+                             f"the checkpoint is {str(self.checkpoint)!r}")
         return self.history
 
     # -- checkpoints -----------------------------------------------------------------
@@ -232,6 +246,7 @@ class Trainer:
         arrays.update({f"pose.{k}": v for k, v in self.pose.state_dict().items()})
         arrays.update({f"opt.{k}": v for k, v in self.opt.state_dict().items()})
         meta = {"iteration": self.iteration, "config": as_dict(self.cfg),
+                "settings": self.settings,
                 "rng": _jsonable(self.rng.bit_generator.state), "history": self.history}
         return save_npz(path, arrays, meta)
 
@@ -251,17 +266,11 @@ class Trainer:
         else:  # a DepthEstimator file: the DispNet's weights under their own names
             self.disp.load_state_dict({k: v for k, v in arrays.items() if "." in k})
 
-    # The settings a resumed run must share with its checkpoint (the others, such as
-    # ``iterations`` or ``lr_decay_at``, may change to train on or to step the lr).
-    RESUME_KEYS = ("seed", "batch_size", "lr", "init_disp", "gyro_yaw", "loss")
-
     def load_checkpoint(self, path) -> None:
+        """Continue from the checkpoint at ``path`` (``check_resume``: ValueError if it
+        was made with other settings)."""
         arrays, meta = load_npz(path)
-        saved, now = meta["config"], as_dict(self.cfg)
-        for key in self.RESUME_KEYS:
-            if saved.get(key) != now[key]:
-                raise ValueError(f"resume: the checkpoint {str(path)!r} was made with {key} = "
-                                 f"{saved.get(key)!r}, this run asks {now[key]!r}")
+        check_resume(meta, self.settings, path)
         pick = lambda prefix: {k[len(prefix):]: v for k, v in arrays.items()
                                if k.startswith(prefix)}
         self.disp.load_state_dict(pick("disp."))
@@ -274,6 +283,29 @@ class Trainer:
     # -- the metric scale from the known flight speed ----------------------------------
     def speed_scale(self, max_triplets: int = 400) -> float:
         return speed_scale(self.pose, self.seq, max_triplets)
+
+
+# The settings a resumed run may change: how far it goes (iterations: train a run on),
+# when the lr steps down, and how it reports; every other one must be its checkpoint's.
+MAY_CHANGE_ON_RESUME = ("iterations", "lr_decay_at", "checkpoint_every", "log_every",
+                        "eval_every")
+
+
+def check_resume(meta: dict, settings: dict, path) -> None:
+    """ValueError unless a run of ``settings`` ({name: value}) may continue the checkpoint
+    at ``path`` with metadata ``meta``: every setting the same but those of
+    MAY_CHANGE_ON_RESUME, and no fewer iterations than it has done. The message names
+    each differing setting with both values."""
+    saved = {**flat_settings(meta["config"]), **meta.get("settings", {})}
+    changed = changed_settings(saved, settings, MAY_CHANGE_ON_RESUME)
+    if changed:
+        raise ValueError(f"resume: the checkpoint {str(path)!r} was made with other "
+                         f"settings: {'; '.join(changed)}; give the run's own (its "
+                         f"results.json records its command), or start afresh")
+    if meta["iteration"] > settings["iterations"]:
+        raise ValueError(f"resume: the run of {str(path)!r} is at iteration "
+                         f"{meta['iteration']} already, beyond iterations "
+                         f"{settings['iterations']}; give at least {meta['iteration']}")
 
 
 def speed_scale(posenet: PoseNet, seq: Sequence, max_triplets: int = 400) -> float:
@@ -306,7 +338,8 @@ def train_depth(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
     collected there with ``data`` when it does not exist; the held-out frames likewise
     from ``test_file`` (default ``run_dir/test.npz``), else ``cfg.test_frames`` frames
     of ``held_out(data)``. ``init_from``: a checkpoint or model file to fine-tune
-    (ignored when a checkpoint is resumed, with ``resume``). ``run_dir`` gets
+    (ignored when a checkpoint is resumed, with ``resume``; a resumed run that has
+    finished is left as it is). ``run_dir`` gets
     checkpoint.npz, curve.csv/.png (the held-out check every ``cfg.eval_every``
     iterations), model.npz, results.json (the model file's metadata: the configs, the
     ``train-depth`` and ``collect`` commands that reproduce it, the held-out results)
@@ -315,11 +348,16 @@ def train_depth(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
-    train = _frames(Path(train_file or run_dir / "train.npz"), data, progress)
+    train_path = Path(train_file or run_dir / "train.npz")
+    train = _frames(train_path, data, progress, own=train_file is None)
     test = _frames(Path(test_file or run_dir / "test.npz"), held_out(data, cfg.test_frames),
-                   progress)
+                   progress, own=test_file is None)
     t_data = time.time() - t0
-    trainer = Trainer(train, cfg, checkpoint=run_dir / "checkpoint.npz", resume=resume)
+    trainer = Trainer(train, cfg, checkpoint=run_dir / "checkpoint.npz", resume=resume,
+                      settings={"data": str(train_path.resolve())})
+    done = [run_dir / "model.npz", run_dir / "results.json"]
+    if trainer.iteration >= cfg.iterations and all(p.is_file() for p in done):
+        return done[0]                   # a finished run: its model and results stand
     if trainer.iteration:
         print(f"train-depth: resuming at iteration {trainer.iteration}")
     elif init_from:
@@ -361,9 +399,27 @@ def train_depth_command(cfg: TrainConfig, data: CollectConfig, run_dir, train_fi
     return " ".join(parts)
 
 
-def _frames(path: Path, data: CollectConfig, progress: bool) -> Sequence:
-    """The sequence file at ``path``, collected there with ``data`` if it is missing."""
-    return load_sequence(path) if path.is_file() else collect_sequence(data, path, progress)
+def _frames(path: Path, data: CollectConfig, progress: bool, own: bool = False) -> Sequence:
+    """The sequence file at ``path``, collected there with ``data`` if it is missing.
+    ``own``: the run's own file (not given by the user), which must hold the frames of
+    ``data`` (ValueError naming the differing settings otherwise)."""
+    if not path.is_file():
+        return collect_sequence(data, path, progress)
+    problem = other_frames(path, data) if own else None
+    if problem:
+        raise ValueError(problem)
+    return load_sequence(path)
+
+
+def other_frames(path, data: CollectConfig) -> str | None:
+    """Why the sequence file at ``path`` does not hold the frames ``data`` collects (its
+    recorded settings differ: each named with both values), or None."""
+    saved = read_metadata(path) or {}
+    changed = changed_settings(saved, as_dict(data))
+    if changed:
+        return (f"{str(path)!r} holds frames collected with other settings: "
+                f"{'; '.join(changed)}")
+    return None
 
 
 def _jsonable(obj):
@@ -375,4 +431,4 @@ def _jsonable(obj):
 
 
 __all__ = ["TrainConfig", "Trainer", "build_nets", "speed_scale", "train_depth",
-           "train_depth_command"]
+           "train_depth_command", "check_resume", "other_frames", "MAY_CHANGE_ON_RESUME"]

@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import UsageError, add_arguments, from_args
-from ..io import append_jsonl
-from .models import depth_estimator_for, recorded_result, recorded_text
+from ..config import (UsageError, add_arguments, add_existing_option, as_dict, flat_settings,
+                      from_args)
+from ..io import append_jsonl, check_log, check_output, claim_run_folder, read_metadata
+from .models import actions_and_camera, depth_estimator_for, recorded_result, recorded_text
 
 RUNS = Path("runs")
 
@@ -27,11 +28,17 @@ def _progress() -> bool:
     return sys.stderr.isatty()
 
 
-def _estimator(depth: str, depth_model, scenario: str, flip: bool = False):
+def _estimator(depth: str, depth_model, scenario: str, flip: bool = False,
+               option: str = "--depth-model"):
+    """The DispNet a command reads (None for GT depth); a depth model given for GT depth,
+    where nothing would read it, is refused."""
+    if depth == "gt" and depth_model:
+        raise UsageError(f"{option}: only read with --depth pred; got {str(depth_model)!r} "
+                         f"with --depth gt")
     try:
         return depth_estimator_for(depth, depth_model, scenario, flip)
     except (FileNotFoundError, ValueError) as e:
-        raise UsageError(f"--depth-model: {e}") from None
+        raise UsageError(f"{option}: {str(e).removeprefix('DepthEstimator.load: ')}") from None
 
 
 def _run_options(p: argparse.ArgumentParser, out: str) -> None:
@@ -39,8 +46,65 @@ def _run_options(p: argparse.ArgumentParser, out: str) -> None:
     p.add_argument("--depth-model", default=None,
                    help="DispNet .npz for --depth pred (default: the shipped one)")
     p.add_argument("--out", default=None, help=f"run folder (default {out})")
-    p.add_argument("--resume", action="store_true", help="continue from its checkpoint")
+    add_existing_option(p, grows="--steps")
     p.add_argument("--smoke", action="store_true", help="a few hundred steps (tests)")
+
+
+def _depth_file(depth: str, depth_model, scenario: str) -> str:
+    """The depth model a run reads, as its checkpoint records it ('' for GT depth)."""
+    from .models import shipped_depth_model
+    return "" if depth == "gt" else str(Path(depth_model or shipped_depth_model(scenario))
+                                        .resolve())
+
+
+def _resumes(args, out: Path) -> bool:
+    return args.existing == "resume" and (out / "checkpoint.npz").is_file()
+
+
+def _check_init_model(t, widen: bool = False) -> None:
+    """--init-model: a finite Q-net file of the run's network (with ``widen``, its LSTM
+    may be narrower: it is grown)."""
+    if not t.init_model:
+        return
+    from ..config import changed_settings
+    from ..world import ACTIONS, Camera
+    from .policies import QNetPolicy
+    if not Path(t.init_model).is_file():
+        raise UsageError(f"--init-model: no file {t.init_model!r}")
+    try:
+        theirs = QNetPolicy.load(t.init_model).qnet.config.to_dict()
+    except ValueError as e:
+        raise UsageError(f"--init-model: {e}") from None
+    cam = Camera(hfov_deg=t.hfov_deg)
+    mine = t.qnet_config(len(ACTIONS if t.actions is None else t.actions),
+                         (cam.height, cam.width)).to_dict()
+    changed = changed_settings(theirs, mine, ("width",) if widen else ())
+    if changed:
+        raise UsageError(f"--init-model: {t.init_model!r} is another network than this run "
+                         f"trains: {'; '.join(changed)}")
+
+
+def _claim(out: Path, args, cfg, t, depth_file: str) -> str:
+    """Check the run folder before any work (``io.claim_run_folder``); with --resume, that
+    its checkpoint is of these settings. Returns "new", "resume", or "finished" (a run
+    asked to resume that has nothing left to do; said on stderr)."""
+    from .train import check_resume
+    if claim_run_folder(out, args.existing, "--out"):
+        settings = {**flat_settings(as_dict(cfg)), "depth_model": depth_file}
+        try:
+            meta = read_metadata(out / "checkpoint.npz")
+            check_resume(meta, settings, out)
+        except ValueError as e:
+            raise UsageError(f"--resume: {str(e).removeprefix('resume: ')}") from None
+        model = out / "model.npz"
+        if meta["steps"] >= t.steps and model.is_file() and "command" in (
+                read_metadata(model) or {}):
+            print(f"the run in {str(out)!r} has finished ({meta['steps']} of {t.steps} "
+                  f"steps); nothing to do (--resume with more --steps trains it on)",
+                  file=sys.stderr)
+            return "finished"
+        return "resume"
+    return "new"
 
 
 def _trained(run, command: str, depth_model, t0: float, **extra) -> int:
@@ -65,11 +129,15 @@ def run_train_agent(args) -> int:
     name = f"{cfg.variant}_{cfg.scenario}_{cfg.depth}_s{cfg.seed}"
     out = Path(args.out) if args.out else RUNS / "agent" / (("smoke_" if args.smoke else "") + name)
     est = _estimator(cfg.depth, args.depth_model, cfg.scenario)
+    if not _resumes(args, out):          # a resumed run starts from its checkpoint instead
+        _check_init_model(cfg)
+    depth_file = _depth_file(cfg.depth, args.depth_model, cfg.scenario)
+    how = _claim(out, args, cfg, cfg, depth_file)
+    if how == "finished":
+        return 0
     t0 = time.time()
-    try:
-        run = train(cfg, out, est, progress=_progress(), resume=args.resume)
-    except (ValueError, FileNotFoundError) as e:
-        raise UsageError(str(e)) from None
+    run = train(cfg, out, est, progress=_progress(), resume=how == "resume",
+                settings={"depth_model": depth_file})
     return _trained(run, command_for(cfg, out, args.depth_model), args.depth_model, t0)
 
 
@@ -94,17 +162,26 @@ def run_distil(args) -> int:
                          "--init-model")
     cam, actions = Camera(hfov_deg=t.hfov_deg), ACTIONS if t.actions is None else t.actions
     try:                                 # a bad teacher: say so before any training
-        load_teacher(cfg.teachers, (cam.height, cam.width), len(actions))
+        teacher = load_teacher(cfg.teachers, (cam.height, cam.width), len(actions))
+        flown, camera = actions_and_camera(teacher)
+        if camera != cam or flown.shape != np.shape(actions) or not np.allclose(flown, actions):
+            raise ValueError(f"{cfg.teachers!r} was trained with another action table or "
+                             f"camera than the student (--set actions, --set hfov_deg)")
     except ValueError as e:
-        raise UsageError(f"--{e}") from None
+        message = str(e).removeprefix("teachers: ")
+        raise UsageError(f"--teachers: {message}") from None
     out = Path(args.out) if args.out else \
         RUNS / "distil" / (("smoke_" if args.smoke else "") + f"{t.scenario}_{t.depth}_s{t.seed}")
     est = _estimator(t.depth, args.depth_model, t.scenario)
+    if not _resumes(args, out):
+        _check_init_model(t, widen=cfg.init_widen)
+    depth_file = _depth_file(t.depth, args.depth_model, t.scenario)
+    how = _claim(out, args, cfg, t, depth_file)
+    if how == "finished":
+        return 0
     t0 = time.time()
-    try:
-        run = distil(cfg, out, est, progress=_progress(), resume=args.resume)
-    except (ValueError, FileNotFoundError) as e:
-        raise UsageError(str(e)) from None
+    run = distil(cfg, out, est, progress=_progress(), resume=how == "resume",
+                 settings={"depth_model": depth_file})
     return _trained(run, command_for(cfg, out, args.depth_model), args.depth_model, t0)
 
 
@@ -122,13 +199,24 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
 
 def run_evaluate(args) -> int:
     from .evaluate import EvalConfig, evaluate_spec
+    from .models import BASELINES, load_policy
     cfg = from_args(EvalConfig, args)
+    if cfg.mirror and all(spec in BASELINES for spec in args.policies):
+        raise UsageError(f"--mirror: mirrors Q-nets; the policies given are baselines only "
+                         f"({', '.join(args.policies)})")
+    if args.json:
+        check_log(args.json, "--json")
     est = _estimator(cfg.depth, cfg.depth_model, cfg.scenario, cfg.flip_tta)
+    for spec in args.policies:         # every policy readable before the first flies
+        try:
+            actions_and_camera(load_policy(spec))
+        except ValueError as e:
+            raise UsageError(str(e)) from None
     for spec in args.policies:
         try:
             _, record = evaluate_spec(spec, cfg, est, progress=_progress())
         except ValueError as e:
-            raise UsageError(f"evaluate {e}") from None
+            raise UsageError(str(e)) from None
         if args.json:
             append_jsonl(args.json, record)
     return 0
@@ -151,13 +239,18 @@ def run_fly(args) -> int:
             raise UsageError(f"--model: Q-net {part!r} not found (expected a shipped name, "
                              f"{' or '.join(SHIPPED_QNETS)}, or a .npz file, or several "
                              f"joined by '+')")
-    depth, depth_model = cfg.depth, shipped_depth_model(cfg.scenario)
-    if depth == "pred" and not depth_model.is_file():
-        print(f"fly: no depth model at {depth_model}; flying on GT depth", file=sys.stderr)
-        depth = "gt"
-    est = _estimator(depth, depth_model, cfg.scenario, cfg.flip_tta)
-    out = fly([load_qnet_policy(p) for p in parts], est, cfg.scenario, seed, cfg.flights,
-              cfg.gif, mirror=cfg.mirror)
+    if cfg.flip_tta and cfg.depth == "gt":
+        raise UsageError("--flip-tta: averages the DispNet's disparity; only with --depth pred")
+    check_output(cfg.gif, "--gif", suffix=".gif")
+    try:
+        policies = [load_qnet_policy(p) for p in parts]
+        actions_and_camera(*policies)          # nets flown together fly one setting
+    except ValueError as e:
+        raise UsageError(f"--model: {e}") from None
+    depth = cfg.depth
+    depth_model = shipped_depth_model(cfg.scenario) if depth == "pred" else None
+    est = _estimator(depth, depth_model, cfg.scenario, cfg.flip_tta, option="--scenario")
+    out = fly(policies, est, cfg.scenario, seed, cfg.flights, cfg.gif, mirror=cfg.mirror)
     print(json.dumps(out))
     by_world = "" if out["ci95_by_world"] is None else \
         f"; by world {out['ci95_by_world'][0]:.2f}-{out['ci95_by_world'][1]:.2f}, " \
@@ -191,13 +284,17 @@ def run_reproduce(args) -> int:
     if cfg.quick and (cfg.recipe != "paper" or cfg.skip_depth):
         raise UsageError("--quick: the paper's recipe on the shipped DispNets; it takes "
                          "neither --recipe distil nor --skip-depth")
-    if cfg.quick:
-        reproduce_quick(Path(args.out), workers=cfg.workers)
-    elif cfg.recipe == "paper":
-        reproduce(Path(args.out), skip_depth=cfg.skip_depth, workers=cfg.workers)
-    else:
-        reproduce_distilled(Path(args.out), skip_depth=cfg.skip_depth,
-                            workers=cfg.workers, students=cfg.students)
+    out = check_output(args.out, "--out", folder=True)
+    try:            # the runs it finds in --out are continued (made with these settings)
+        if cfg.quick:
+            reproduce_quick(out, workers=cfg.workers)
+        elif cfg.recipe == "paper":
+            reproduce(out, skip_depth=cfg.skip_depth, workers=cfg.workers)
+        else:
+            reproduce_distilled(out, skip_depth=cfg.skip_depth, workers=cfg.workers,
+                                students=cfg.students)
+    except ValueError as e:
+        raise UsageError(f"--out: {e}") from None
     return 0
 
 

@@ -47,7 +47,8 @@ import numpy as np
 from .. import autograd as ag
 from ..autograd.losses import huber_loss
 from ..autograd.optim import clip_grad_norm
-from ..config import at_least, between, positive, setting, validate
+from ..config import (as_dict, at_least, between, flat_settings, positive, setting,
+                      validate)
 from .agent import AgentConfig
 from .mirror import mirror_permutation, mirror_q, mirror_windows
 from .replay import EpisodeReplay, SequenceBatch
@@ -229,10 +230,11 @@ def _widen(agent, path) -> None:
 
 
 def distil(cfg: DistilConfig, out_dir, depth_estimator=None, *, progress: bool = True,
-           resume: bool = False) -> Run:
+           resume: bool = False, settings: dict | None = None) -> Run:
     """Train ``cfg.train``'s student by distillation (module docstring) with
     ``rl.train.train``; returns the run. ``depth_estimator``: the student's DispNet
-    (``cfg.train.depth="pred"``)."""
+    (``cfg.train.depth="pred"``); a resumed run must share every setting of ``cfg``
+    with its checkpoint, and ``settings`` (``rl.train.Run``)."""
     from ..world import ACTIONS, Camera
     t = cfg.train
     if not cfg.teachers:
@@ -251,7 +253,8 @@ def distil(cfg: DistilConfig, out_dir, depth_estimator=None, *, progress: bool =
         return LabelledReplay(capacity, n_streams, frame_shape, len(actions), seed=seed)
     run = start_run(t, out_dir, depth_estimator, resume, replay=replay,
                     extra={"distillation": steps},
-                    load_init=_widen if cfg.init_widen else None)
+                    load_init=_widen if cfg.init_widen else None,
+                    settings={**flat_settings(as_dict(cfg)), **(settings or {})})
     return train(t, out_dir, progress=progress, run=run, act=steps.act, learn=steps.learn)
 
 

@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..config import at_least, setting, validate
+from ..config import ConfigError, at_least, setting, validate
 from .flights import Flights, FlightsConfig
 from .policies import Policy
 
@@ -249,7 +249,8 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     """Success rate of ``policy`` over ``n_flights`` fresh flights (greedy, batched).
 
     The flights are flown ``chunk`` at a time, each chunk from its own seed
-    (``_chunk_seeds``). ``workers`` > 1 flies the chunks in that many processes (one
+    (``_chunk_seeds``) with its own pool of worlds: the worlds flown depend on ``chunk``
+    as on ``seed`` (``evaluate --json`` records both). ``workers`` > 1 flies the chunks in that many processes (one
     per core; forked, so the policy and the depth network are shared, not pickled):
     the result is the same as with one. ``flights_factory`` (default ``Flights``) makes
     each chunk's flights from ``Flights``'s arguments: a subclass that changes what the
@@ -330,7 +331,9 @@ class EvalConfig:
                          source="run", choices=("gt", "pred"))
     depth_model: str = setting("", "DispNet .npz for --depth pred (empty: the shipped one "
                                    "of the scenario)", source="run")
-    chunk: int = setting(500, "flights stepped together", source="run", check=at_least(1))
+    chunk: int = setting(500, "flights stepped together; each chunk flies its own pool of "
+                              "worlds, so the chunk is part of which worlds the seed draws "
+                              "(the record gives it)", source="run", check=at_least(1))
     workers: int = setting(1, "processes flying the chunks, one per core (the same "
                               "result; run with OMP_NUM_THREADS=1)", source="run",
                            check=at_least(1))
@@ -343,6 +346,13 @@ class EvalConfig:
 
     def __post_init__(self):
         validate(self)
+        if self.depth == "gt":          # the DispNet's settings, where no DispNet reads
+            if self.depth_model:
+                raise ConfigError("depth_model", self.depth_model, "none with --depth gt "
+                                  "(the DispNet reads only with --depth pred)")
+            if self.flip_tta:
+                raise ConfigError("flip_tta", True, "false with --depth gt (it averages "
+                                  "the DispNet's disparity)")
 
 
 def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
@@ -368,7 +378,7 @@ def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
     print(res.line() + what, flush=True)
     command = " ".join(["python -m minid3rqn evaluate", spec, *command_line(EvalConfig, cfg)])
     record = {**res.to_dict(), "spec": spec, "depth_flip": bool(flip),
-              "mirror": bool(cfg.mirror and spec not in BASELINES),
+              "mirror": bool(cfg.mirror and spec not in BASELINES), "chunk": cfg.chunk,
               "unfinished": warning is not None, "command": command}
     return res, record
 

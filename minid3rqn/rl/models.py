@@ -9,6 +9,7 @@ with those, or it reads frames and picks actions it never learned.
     trained_actions(meta), trained_camera(meta)   the action table and camera of a file
     shipped_depth_model("basic")                  minid3rqn/models/depth_basic.npz
     load_depth_estimator(path, flip=False)        a DispNet to fly on predicted depth
+    ship(model, name, records)                    a finished, evaluated model into models/
 """
 from __future__ import annotations
 
@@ -152,6 +153,75 @@ def save_trained(run, command: str, depth_model=None, seconds: float | None = No
     return run.save_model(run.out / "model.npz", meta)
 
 
+# -- shipping a model ------------------------------------------------------------------------
+def ship(model, name: str, records=()) -> Path:
+    """Copy a finished, evaluated model into minid3rqn/models as ``<name>.npz``, with
+    ``<name>.json`` beside it (how it was made and how it flies: what ``fly``, the docs
+    and ``recorded_result`` read); returns the new .npz. The only way a command-line run
+    reaches minid3rqn/models (``io.check_output`` keeps every other output out of it).
+
+    ``model``: a Q-net file of a finished ``train-agent`` or ``distil`` run (not a
+    checkpoint's snapshot), with ``records`` the ``evaluate --json`` records of it (at
+    least one); or a depth model file of ``train-depth``, which holds its held-out
+    evaluation. ValueError, before anything is written, otherwise."""
+    import re
+
+    from ..io import load_npz, save_npz
+    model = Path(model)
+    if not re.fullmatch(r"[a-z0-9_]+", name):
+        raise ValueError(f"ship: name must be lowercase letters, digits and '_' (the file "
+                         f"name in minid3rqn/models); got {name!r}")
+    arrays, meta = load_npz(model)
+    meta = meta or {}
+    if "dispnet" in meta:
+        if "results" not in meta or "command" not in meta:
+            raise ValueError(f"ship: {str(model)!r} holds no held-out evaluation; ship the "
+                             f"model.npz a finished train-depth run writes")
+        about = {k: v for k, v in meta.items() if k not in ("dispnet", "scale", "height",
+                                                             "width")}
+    else:
+        about = {**_finished_qnet(model, meta), "evaluations": _evaluations(model, records)}
+    path = save_npz(MODELS / f"{name}.npz", arrays, meta)
+    path.with_suffix(".json").write_text(json.dumps(about, indent=2) + "\n")
+    return path
+
+
+def _finished_qnet(model: Path, meta: dict) -> dict:
+    """What the JSON beside a shipped Q-net says of its making; ValueError for a file
+    that is no Q-net of a finished run."""
+    if "qnet_config" not in meta:
+        raise ValueError(f"ship: {str(model)!r} is neither a Q-net nor a depth model file")
+    total = _trained(meta).get("steps")
+    if "command" not in meta or total is None or meta.get("steps", 0) < total:
+        raise ValueError(f"ship: {str(model)!r} is not the model of a finished run (at "
+                         f"{meta.get('steps')} of {total} steps); finish it with --resume")
+    keys = ("kind", "qnet_config", "command", "depth_model", "seed", "machine",
+            "train_seconds")
+    return {k: meta[k] for k in keys if k in meta}
+
+
+def _evaluations(model: Path, records) -> list[dict]:
+    """The ``evaluate --json`` records of ``model`` as the rows of a shipped JSON;
+    ValueError if there is none."""
+    rows = []
+    for r in records:
+        if "+" in r.get("spec", "+") or r.get("unfinished"):
+            continue
+        if Path(r["spec"]).resolve() != model.resolve():
+            continue
+        rows.append({"scenario": r["scenario"], "depth": r["depth"], "flights": r["flights"],
+                     "seed": r["seed"], "rate": r["rate"],
+                     "ci95": [r["ci_low"], r["ci_high"]], "command": r["command"],
+                     "worlds": r["worlds"], "ci95_by_world": [r["ci_low_worlds"],
+                                                              r["ci_high_worlds"]],
+                     "design_effect": r["design_effect"], "worlds_set": r["world_set"],
+                     "mirror": r["mirror"], "flip_tta": r["depth_flip"]})
+    if not rows:
+        raise ValueError(f"ship: no recorded evaluation of {str(model)!r}; give the records "
+                         f"of `python -m minid3rqn evaluate {model} --json FILE`")
+    return rows
+
+
 # -- recorded results (the JSON beside a shipped model) --------------------------------------
 def recorded_result(model, scenario: str, depth: str, mirror: bool = False,
                     flip_tta: bool = False) -> dict | None:
@@ -180,5 +250,5 @@ def recorded_text(row: dict) -> str:
 __all__ = ["MODELS", "SHIPPED_QNET", "SHIPPED_QNETS", "BASELINES", "VARIANT_NAMES",
            "shipped_depth_model", "load_depth_estimator", "depth_estimator_for",
            "trained_actions", "trained_camera", "unfinished_warning", "load_qnet_policy",
-           "load_policy", "actions_and_camera", "command_for", "save_trained",
+           "load_policy", "actions_and_camera", "command_for", "save_trained", "ship",
            "recorded_result", "recorded_text"]

@@ -190,7 +190,7 @@ def paired_difference(a: list[dict], b: list[dict], z: float = 1.96) -> tuple:
     if ca.keys() != cb.keys():
         raise ValueError(f"pool: the two sides flew different worlds ({len(ca)} and "
                          f"{len(cb)} worlds, {len(ca.keys() & cb.keys())} shared); pair "
-                         f"evaluations of the same scenario, seed and flights")
+                         f"evaluations of the same scenario, seed, flights and chunk")
     keys = sorted(ca)
     ya, ma = (np.array([ca[k][j] for k in keys], np.float64) for j in (0, 1))
     yb, mb = (np.array([cb[k][j] for k in keys], np.float64) for j in (0, 1))
@@ -270,7 +270,7 @@ def run(args) -> int:
     try:
         return _run(args)
     except (ValueError, FileNotFoundError) as e:     # our own messages, not a traceback
-        raise UsageError(str(e)) from None
+        raise UsageError(str(e).removeprefix("pool: ")) from None
 
 
 def _run(args) -> int:

@@ -126,18 +126,30 @@ def _smoke(cfg: TrainConfig, budget: dict) -> TrainConfig:
     return replace(cfg, **SMOKE) if budget.get("smoke") else cfg
 
 
+def _finished(run_dir: Path, command: str, steps: int) -> bool:
+    """``run_dir`` holds the finished model (``steps`` transitions) that ``command`` makes."""
+    from ..io import load_npz
+    path = run_dir / "model.npz"
+    if not path.is_file():
+        return False
+    meta = load_npz(path)[1]
+    return meta.get("command") == command and meta.get("steps") == steps
+
+
 def _train_qnet(cfg, run_dir: Path, depth_model=None, progress: bool = True) -> Path:
     """Train a TrainConfig (``rl.train.train``) or a DistilConfig (``rl.distill.distil``)
     in ``run_dir``, resumed if it was cut off; returns the model file, which records
     the one command that makes it."""
     t = cfg.train if isinstance(cfg, DistilConfig) else cfg
-    est = load_depth_estimator(depth_model) if t.depth == "pred" else None
     depth_model = depth_model if t.depth == "pred" else None
+    command = command_for(cfg, run_dir, depth_model)
+    if _finished(run_dir, command, t.steps):          # kept as it is, with its own record
+        return run_dir / "model.npz"
+    est = load_depth_estimator(depth_model) if t.depth == "pred" else None
     t0 = time.time()
     fit = distil if isinstance(cfg, DistilConfig) else train
     run = fit(cfg, run_dir, est, progress=progress, resume=True)
-    return save_trained(run, command_for(cfg, run_dir, depth_model), depth_model,
-                        time.time() - t0)
+    return save_trained(run, command, depth_model, time.time() - t0)
 
 
 def _train_task(task) -> Path:
@@ -390,16 +402,6 @@ recipe here: 240k on GT depth, then 20k on predicted depth) and the depth nets a
 shipped ones. The full tables: python -m minid3rqn reproduce (hours; docs/results.md)."""
 
 
-def _finished(run_dir: Path, command: str, steps: int) -> bool:
-    """``run_dir`` holds the finished model (``steps`` transitions) that ``command`` makes."""
-    from ..io import load_npz
-    path = run_dir / "model.npz"
-    if not path.is_file():
-        return False
-    meta = load_npz(path)[1]
-    return meta.get("command") == command and meta.get("steps") == steps
-
-
 def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
                     budget: dict | None = None) -> dict:
     """Tables 5 and 6 at the classroom budget (the block above): trains DDQN, D3QN, DDRQN
@@ -412,13 +414,8 @@ def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
     flights = budget.pop("flights")
     out = out / "quick"
     depth_basic = MODELS / "depth_basic.npz"
-    tasks = []
-    for variant in QUICK_FAMILY:
-        cfg = TrainConfig(variant=variant, seed=seed, **budget)
-        run_dir = out / "agent" / variant
-        if not _finished(run_dir, command_for(cfg, run_dir, depth_basic), cfg.steps):
-            tasks.append((cfg, run_dir, depth_basic))
-    _train_all(tasks, workers)
+    _train_all([(TrainConfig(variant=v, seed=seed, **budget), out / "agent" / v, depth_basic)
+                for v in QUICK_FAMILY], workers)
     for variant in QUICK_FAMILY:
         (out / "agent" / variant / "checkpoint.npz").unlink(missing_ok=True)
     models = [out / "agent" / v / "model.npz" for v in QUICK_FAMILY]

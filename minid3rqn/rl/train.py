@@ -20,20 +20,25 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..config import (as_dict, at_least, between, one_of, positive, setting, validate)
-from ..io import load_npz, save_npz
+from ..config import (as_dict, at_least, between, changed_settings, flat_settings, one_of,
+                      positive, setting, validate)
+from ..io import RunStopped, StopRequest, load_npz, save_npz
 from ..nets.qnet import QNetConfig
 from .agent import Agent, AgentConfig, FrameStacker
 from .flights import Flights, FlightsConfig
 from .replay import EpisodeReplay
 
 RECURRENT = ("ddrqn", "d3rqn")
+# The settings a resumed run may change: how far it goes (steps: train a run on) and how
+# it reports; every other one must be its checkpoint's.
+MAY_CHANGE_ON_RESUME = ("steps", "log_every", "checkpoint_every")
 # A few hundred steps on a small net, for tests (train-agent --smoke).
 SMOKE = dict(steps=128, learning_starts=64, n_envs=8, log_every=64, checkpoint_every=1000,
              hidden=16, replay_capacity=2000, eps_decay_steps=200, n_worlds=2)
@@ -41,6 +46,12 @@ SMOKE = dict(steps=128, learning_starts=64, n_envs=8, log_every=64, checkpoint_e
 
 def _conv_channels(v):
     return None if len(v) == 3 and all(c >= 1 for c in v) else "three numbers >= 1"
+
+
+def _action_table(v):
+    rows = all(isinstance(r, list) and len(r) == 2 and all(map(math.isfinite, r))
+               and r[0] >= 0 for r in v)
+    return None if v and rows else "rows of (speed >= 0, yaw rate)"
 
 
 @dataclass
@@ -92,7 +103,7 @@ class TrainConfig:
                                     source="run", check=at_least(1), cli="more")
     # -- what the net is trained with, recorded in its file (evaluate and fly use it)
     actions: list | None = setting(None, "the action table, (speed, yaw rate) rows "
-                                         "(none: the paper's Table 3)")
+                                         "(none: the paper's Table 3)", check=_action_table)
     hfov_deg: float = setting(90.0, "the camera's horizontal field of view (degrees)",
                               check=lambda v: None if 0 < v < 180 else "a number in (0, 180)")
     conv_channels: list | None = setting(None, "out channels of the three conv layers "
@@ -130,13 +141,16 @@ class Run:
     ``reward_fn``, ``depth_fn``: the flights' (``Flights``); ``td_target``: the agent's;
     ``replay``: makes the replay, ``(capacity, n_streams, frame_shape, seed)``;
     ``extra``: more state for the checkpoint, {name: object with ``state_dict`` and
-    ``load_state_dict``}."""
+    ``load_state_dict``}; ``settings``: what a resumed run must share with its
+    checkpoint besides ``cfg``'s settings ({name: value}: a method's own settings, the
+    depth model file)."""
 
     def __init__(self, cfg: TrainConfig, out_dir, depth_estimator=None, *, reward_fn=None,
-                 depth_fn=None, td_target=None, replay=EpisodeReplay, extra=None):
+                 depth_fn=None, td_target=None, replay=EpisodeReplay, extra=None,
+                 settings: dict | None = None):
         from ..world import Camera
         self.cfg, self.out = cfg, Path(out_dir)
-        self.out.mkdir(parents=True, exist_ok=True)
+        self.settings = {**flat_settings(as_dict(cfg)), **(settings or {})}
         ss = np.random.SeedSequence(cfg.seed)
         net_seed, world_seed, act_seed, replay_seed = (int(s.generate_state(1)[0])
                                                        for s in ss.spawn(4))
@@ -159,6 +173,7 @@ class Run:
         self.notes: dict[str, list] = {}
         self.returns = np.zeros(cfg.n_envs)
         self.lengths = np.zeros(cfg.n_envs, dtype=np.int64)
+        self.out.mkdir(parents=True, exist_ok=True)      # made once the run could be
 
     def start(self) -> None:
         """Every flight takes off; its first frame opens its replay stream."""
@@ -225,7 +240,8 @@ class Run:
         arrays.update(stacker=self.stacker.buf, returns=self.returns, lengths=self.lengths)
         if self.state is not None:
             arrays["state_h"], arrays["state_c"] = self.state[0].data, self.state[1].data
-        meta = {"config": as_dict(self.cfg), "steps": self.steps, "episodes": self.episodes,
+        meta = {"config": as_dict(self.cfg), "settings": self.settings,
+                "steps": self.steps, "episodes": self.episodes,
                 "update_credit": self.update_credit, "curve": self.curve, "notes": self.notes,
                 "rng": json.dumps(self.rng.bit_generator.state),
                 "replay_rng": json.dumps(self.replay.rng.bit_generator.state),
@@ -235,16 +251,11 @@ class Run:
         return path
 
     def load_checkpoint(self) -> None:
-        """Continue from ``out_dir/checkpoint.npz`` (made with these settings but
-        ``steps``; ValueError otherwise)."""
+        """Continue from ``out_dir/checkpoint.npz`` (``check_resume``: ValueError if it was
+        made with other settings)."""
         from ..autograd import Tensor
         arrays, meta = load_npz(self.out / "checkpoint.npz")
-        mine, theirs = as_dict(self.cfg), {**meta["config"], "steps": self.cfg.steps}
-        changed = sorted(k for k in mine if mine[k] != theirs.get(k))
-        if changed:
-            raise ValueError(f"resume: the checkpoint in {str(self.out)!r} was made with other "
-                             f"settings ({', '.join(changed)}); give the run's own (its "
-                             f"model file records its command)")
+        check_resume(meta, self.settings, self.out)
 
         def part(prefix):
             return {k[len(prefix) + 1:]: v for k, v in arrays.items()
@@ -263,6 +274,23 @@ class Run:
                                                       meta["notes"])
         self.rng.bit_generator.state = json.loads(meta["rng"])
         self.replay.rng.bit_generator.state = json.loads(meta["replay_rng"])
+
+
+def check_resume(meta: dict, settings: dict, where) -> None:
+    """ValueError unless a run of ``settings`` ({name: value}) may continue the checkpoint
+    with metadata ``meta`` (in folder ``where``): every setting the same but those of
+    MAY_CHANGE_ON_RESUME, and no fewer steps than it has done. The message names each
+    differing setting with both values."""
+    saved = meta.get("settings") or flat_settings(meta["config"])
+    changed = changed_settings(saved, settings, MAY_CHANGE_ON_RESUME)
+    if changed:
+        raise ValueError(f"resume: the checkpoint in {str(where)!r} was made with other "
+                         f"settings: {'; '.join(changed)}; give the run's own (its model "
+                         f"file records its command), or start afresh")
+    if meta["steps"] > settings["steps"]:
+        raise ValueError(f"resume: the run in {str(where)!r} is at {meta['steps']} steps "
+                         f"already, beyond steps {settings['steps']}; give at least "
+                         f"{meta['steps']}")
 
 
 def epsilon_greedy(run: Run) -> np.ndarray:
@@ -299,7 +327,7 @@ def start_run(cfg: TrainConfig, out_dir, depth_estimator=None, resume: bool = Fa
 
 def train(cfg: TrainConfig, out_dir, depth_estimator=None, *, reward_fn=None, depth_fn=None,
           td_target=None, progress: bool = True, resume: bool = False, run: Run | None = None,
-          act=epsilon_greedy, learn=double_q_update) -> Run:
+          act=epsilon_greedy, learn=double_q_update, settings: dict | None = None) -> Run:
     """Train a Q-net as the module docstring says; returns the run (``run.agent.online``
     is the net; ``out_dir`` holds model.npz, checkpoint.npz and the learning curve).
 
@@ -307,12 +335,13 @@ def train(cfg: TrainConfig, out_dir, depth_estimator=None, *, reward_fn=None, de
     collided[, yaw_rate])``: the reward (default the paper's Eq. 4); ``depth_fn(depth,
     rng)``: a change of every depth map the Q-net sees; ``td_target``: the TD target
     (default ``agent.double_q_targets``). ``resume``: continue the run in ``out_dir``
-    from its checkpoint. A method built on this loop passes its own ``run`` (made by
-    ``start_run``) and steps 1 and 4 (``act(run) -> actions``, ``learn(run, batch) ->
-    {"loss", "q_mean", ...}``)."""
+    from its checkpoint (``settings``: Run's). A method built on this loop passes its own
+    ``run`` (made by ``start_run``) and steps 1 and 4 (``act(run) -> actions``,
+    ``learn(run, batch) -> {"loss", "q_mean", ...}``). Ctrl-C stops the loop at the end
+    of a step: the checkpoint is saved, then ``io.RunStopped`` is raised."""
     if run is None:
         run = start_run(cfg, out_dir, depth_estimator, resume, reward_fn=reward_fn,
-                        depth_fn=depth_fn, td_target=td_target)
+                        depth_fn=depth_fn, td_target=td_target, settings=settings)
     cfg = run.cfg
     t0 = time.time() - (run.curve[-1]["seconds"] if run.curve else 0.0)
     bar = None
@@ -322,51 +351,55 @@ def train(cfg: TrainConfig, out_dir, depth_estimator=None, *, reward_fn=None, de
                    desc=f"train {cfg.variant}")
     next_log = (run.steps // cfg.log_every + 1) * cfg.log_every
     next_checkpoint = (run.steps // cfg.checkpoint_every + 1) * cfg.checkpoint_every
-    while run.steps < cfg.steps:
-        # 1. act
-        actions = act(run)
-        # 2. step the flights
-        res = run.flights.step(actions)
-        done = res.terminated | res.truncated
-        # 3. store the transitions; a finished flight starts a new episode
-        run.replay.add_step(actions, res.rewards, res.terminated, res.truncated,
-                            res.final_frames)
-        run.episodes_end(res, done)
-        if done.any():
-            run.replay.start_episodes(np.flatnonzero(done), res.frames[done])
-            run.state = run.agent.reset_state(run.state, done)
-        run.stacker.push(res.frames[~done], np.flatnonzero(~done))
-        if done.any():
-            run.stacker.reset(np.flatnonzero(done), res.frames[done])
-        run.steps += cfg.n_envs
-        # 4. learn from windows of the replay
-        if run.steps >= cfg.learning_starts:
-            run.update_credit += cfg.updates_per_step
-            while run.update_credit >= 1.0:
-                run.update_credit -= 1.0
-                info = learn(run, run.replay.sample(cfg.batch_size, cfg.window(), cfg.stack))
-                run.note("loss", info["loss"])
-                run.note("q_mean", info["q_mean"])
-        if bar is not None:
-            bar.update(cfg.n_envs)
-        # 5. log
-        if run.steps >= next_log:
-            row = run.log_row(time.time() - t0)
-            next_log += cfg.log_every
+    with StopRequest() as stop:      # Ctrl-C: stop at the end of a step, checkpoint saved
+        while run.steps < cfg.steps and not stop.requested:
+            # 1. act
+            actions = act(run)
+            # 2. step the flights
+            res = run.flights.step(actions)
+            done = res.terminated | res.truncated
+            # 3. store the transitions; a finished flight starts a new episode
+            run.replay.add_step(actions, res.rewards, res.terminated, res.truncated,
+                                res.final_frames)
+            run.episodes_end(res, done)
+            if done.any():
+                run.replay.start_episodes(np.flatnonzero(done), res.frames[done])
+                run.state = run.agent.reset_state(run.state, done)
+            run.stacker.push(res.frames[~done], np.flatnonzero(~done))
+            if done.any():
+                run.stacker.reset(np.flatnonzero(done), res.frames[done])
+            run.steps += cfg.n_envs
+            # 4. learn from windows of the replay
+            if run.steps >= cfg.learning_starts:
+                run.update_credit += cfg.updates_per_step
+                while run.update_credit >= 1.0:
+                    run.update_credit -= 1.0
+                    info = learn(run, run.replay.sample(cfg.batch_size, cfg.window(), cfg.stack))
+                    run.note("loss", info["loss"])
+                    run.note("q_mean", info["q_mean"])
             if bar is not None:
-                bar.set_postfix(success=f"{row['success']:.2f}", ret=f"{row['return']:.1f}",
-                                eps=f"{row['epsilon']:.2f}")
-        # 6. checkpoint
-        if run.steps >= next_checkpoint:
-            run.save_checkpoint()
-            next_checkpoint += cfg.checkpoint_every
-            if bar is None:                   # no bar: one line per checkpoint instead
-                success = run.curve[-1]["success"] if run.curve else float("nan")
-                print(f"{run.out.name}: {run.steps}/{cfg.steps} steps, success "
-                      f"{success:.2f}, {time.time() - t0:.0f} s", flush=True)
-    if bar is not None:
-        bar.close()
-    run.save_checkpoint()
+                bar.update(cfg.n_envs)
+            # 5. log
+            if run.steps >= next_log:
+                row = run.log_row(time.time() - t0)
+                next_log += cfg.log_every
+                if bar is not None:
+                    bar.set_postfix(success=f"{row['success']:.2f}", ret=f"{row['return']:.1f}",
+                                    eps=f"{row['epsilon']:.2f}")
+            # 6. checkpoint
+            if run.steps >= next_checkpoint:
+                run.save_checkpoint()
+                next_checkpoint += cfg.checkpoint_every
+                if bar is None:                   # no bar: one line per checkpoint instead
+                    success = run.curve[-1]["success"] if run.curve else float("nan")
+                    print(f"{run.out.name}: {run.steps}/{cfg.steps} steps, success "
+                          f"{success:.2f}, {time.time() - t0:.0f} s", flush=True)
+        if bar is not None:
+            bar.close()
+        run.save_checkpoint()
+    if run.steps < cfg.steps:
+        raise RunStopped(f"stopped at {run.steps} of {cfg.steps} steps; the checkpoint is in "
+                         f"{str(run.out)!r}")
     return run
 
 
