@@ -394,12 +394,14 @@ QUICK_FLIGHTS = 500
 TEST_WORLDS = 271828                 # the test set of world seeds (docs/results.md)
 QUICK_FAMILY = ("d3rqn", "ddrqn", "d3qn", "ddqn")
 QUICK_NOTE = """\
-What this quick run can show: the ordering of the paper's Table 5 (learned nets far above
-Straight and Random; where it holds at this budget, the recurrent nets above the
-feed-forward ones) and that the D3RQN trained in basic flies the three new worlds. What it
-cannot show: the paper's values. Each net learns from 40k transitions (the paper's
-recipe here: 240k on GT depth, then 20k on predicted depth) and the depth nets are the
-shipped ones. The full tables: python -m minid3rqn reproduce (hours; docs/results.md)."""
+What this quick run can show: orderings. Are the learned nets far above Straight and
+Random? Are the recurrent nets (DDRQN, D3RQN: memory of the last 5 frames) above the
+feed-forward ones (DDQN, D3QN)? How much of its skill does the D3RQN trained in basic
+keep in three worlds it never saw? What it cannot show: the paper's values, or gaps of
+a few points (500 flights give intervals about 0.1 wide). Each net learned from 40k
+transitions with 64 units, on the shipped DispNets (the full recipe: 240k transitions
+on GT depth, then 20k on predicted depth, 128 units, and its own DispNets).
+The full tables: python -m minid3rqn reproduce (hours; docs/results.md)."""
 
 
 def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
