@@ -31,6 +31,8 @@ depth * np.exp(e) stays positive):
     python -m minid3rqn exercise depth-errors --baseline   (trained on clean GT depth)
 
 Rules the checker enforces:
+  * change the depth: returning it unchanged is the paper's setting, which
+    `exercise depth-errors --baseline` already trains;
   * return an array of the input's shape (n, 32, 104), of positive, finite depths;
   * do not modify `depth` in place (no `depth *= ...`, no `depth[...] = ...`): return
     a new array;
@@ -58,4 +60,4 @@ def corrupt(depth, rng):
     Returns:
         An array of the same shape (n, H, W): the corrupted depths, positive and finite.
     """
-    return depth        # no corruption: the paper's setting (train on clean GT depth)
+    return depth        # no corruption yet: the paper's setting (clean GT depth). Yours here.
