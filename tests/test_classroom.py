@@ -2,6 +2,7 @@
 message on the unmodified template (where the exercise asks for a change) and on
 deliberately broken solutions. Plus the change reaching training as a parameter."""
 import argparse
+import importlib
 import json
 import os
 import shutil
@@ -523,6 +524,30 @@ def test_run_agent_exercise_smoke(tmp_path):
     pol = load_policy(str(tmp_path / "actions" / res["tag"] / "model.npz"))
     assert evaluate_policy(pol, "basic", n_flights=2, chunk=2, max_steps=2,
                            progress=False).flights == 2
+
+
+def test_the_papers_setting_is_trained_once_and_reused(tmp_path, monkeypatch):
+    """The baselines of the agent exercises are one training per budget and seed: the
+    first trains it into runs/classroom/baseline/<key>, the others (and a student's run
+    that asks for the paper's setting) reuse it."""
+    from minid3rqn.classroom.runner import run_exercise
+    first = run_exercise("reward", baseline=True, budget="smoke", out=tmp_path, progress=False)
+    assert Path(first["model"]).parent.parent == tmp_path / "baseline"
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("the paper's setting was trained a second time")
+
+    monkeypatch.setattr(importlib.import_module("minid3rqn.rl.train"), "train", no_training)
+    again = run_exercise("actions", baseline=True, budget="smoke", out=tmp_path, progress=False)
+    five = write(tmp_path, "memory.py", "SEQ_LEN = 5\n")
+    mine = run_exercise("memory", file=five, budget="smoke", out=tmp_path, progress=False)
+    for res in (again, mine):
+        assert res["model"] == first["model"] and res["success"] == first["success"]
+        assert res["mean_steps"] == first["mean_steps"]
+    assert (tmp_path / "actions" / "paper-smoke" / "result.json").is_file()
+    with pytest.raises(AssertionError, match="a second time"):      # another seed: trained
+        run_exercise("reward", baseline=True, budget="smoke", seed=1, out=tmp_path,
+                     progress=False)
 
 
 def test_run_depth_exercise_smoke(tmp_path):
