@@ -571,12 +571,3 @@ def test_check_command(capsys):
     assert "NOT YET" in capsys.readouterr().out
     assert run_check(ns(exercise="all", file=str(SOLUTIONS))) == 0
     assert "8/8 exercises pass" in capsys.readouterr().out
-
-
-def test_warp_picture_tells_the_truth(tmp_path):
-    from minid3rqn.classroom.pictures import make_warp_picture, warp_rows
-    rows = warp_rows(seed=0, height=32, width=104)
-    err = {name: float(np.mean(e[valid])) for name, _, _, e, valid in rows}
-    true, none, wrong = err["true depth, true motion"], err["no warp"], err["depth x 0.5"]
-    assert true < 0.5 * none and true < wrong, err
-    assert make_warp_picture(tmp_path / "warp.png").is_file()
