@@ -79,7 +79,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="worlds, weights and batches")
     parser.add_argument("--out", default="runs/examples/03_train_depth",
                         help="folder for the pictures")
-    parser.add_argument("--iterations", type=int, default=1000, help="training iterations")
+    parser.add_argument("--iterations", type=int, default=800, help="training iterations")
     args = parser.parse_args()
     out = Path(args.out)
     print("0. the previous frame warped into the target (GT depth and motion):")

@@ -66,7 +66,8 @@ def depth_key(width: int, near: float = 0.5, far: float = 12.0, log: bool = Fals
               height: int = 24) -> np.ndarray:
     """The colour key of ``depth_to_rgb(..., near, far, log)``: a bar from ``near`` (left)
     to ``far`` (right) in its colours, with ticks in metres under it; (height, width, 3)
-    uint8. The ticks are round numbers (at most six), the ends included."""
+    uint8. The ticks fall on a simple step (0.5, 1, 2, 5 ... m; at most six), the ends
+    included."""
     x = np.linspace(0.0, 1.0, width)
     metres = near * (far / near) ** x if log else near + x * (far - near)
     im = Image.new("RGB", (width, height), (255, 255, 255))
@@ -262,5 +263,6 @@ def compare_curves_png(curves: dict, path, key: str = "success", title: str = ""
     return Path(path)
 
 
-__all__ = ["colormap", "depth_to_rgb", "depth_key", "resize", "to_rgb", "hstack", "image_grid", "label",
-           "bar_chart", "write_gif", "line_plot", "learning_curve_png", "compare_curves_png"]
+__all__ = ["colormap", "depth_to_rgb", "depth_key", "resize", "to_rgb", "hstack", "image_grid",
+           "label", "bar_chart", "write_gif", "line_plot", "learning_curve_png",
+           "compare_curves_png"]
