@@ -94,7 +94,8 @@ def test_check_works_on_the_students_copy_made_from_the_template(tmp_path, monke
 
 # -- whatever the student's code does, the check reports it and goes on ---------------------
 @pytest.mark.parametrize("body, phrase", [
-    ("while True:\n        pass", "reward(0.5, False, 0.0) took longer than 0.2 s: an infinite loop?"),
+    ("while True:\n        pass",
+     "reward(0.5, False, 0.0) took longer than 0.2 s: an infinite loop?"),
     ("import sys\n    sys.exit(0)", "called exit() (SystemExit: 0) (your file, line 3"),
     ("raise KeyboardInterrupt", "was interrupted (Ctrl-C)"),
 ])
@@ -533,6 +534,10 @@ def test_the_papers_setting_is_trained_once_and_reused(tmp_path, monkeypatch):
     from minid3rqn.classroom.runner import run_exercise
     first = run_exercise("reward", baseline=True, budget="smoke", out=tmp_path, progress=False)
     assert Path(first["model"]).parent.parent == tmp_path / "baseline"
+    clip = write(tmp_path, "clip.py", "import numpy as np\n\ndef reward(d, collided):\n"
+                                      "    return np.where(collided, -1.0, np.minimum(d, 3.0))\n")
+    mine = run_exercise("reward", file=clip, budget="smoke", out=tmp_path, progress=False)
+    assert mine["tag"] == "clip-smoke"                # a run is named after its file
 
     def no_training(*args, **kwargs):
         raise AssertionError("the paper's setting was trained a second time")
@@ -540,14 +545,16 @@ def test_the_papers_setting_is_trained_once_and_reused(tmp_path, monkeypatch):
     monkeypatch.setattr(importlib.import_module("minid3rqn.rl.train"), "train", no_training)
     again = run_exercise("actions", baseline=True, budget="smoke", out=tmp_path, progress=False)
     five = write(tmp_path, "memory.py", "SEQ_LEN = 5\n")
-    mine = run_exercise("memory", file=five, budget="smoke", out=tmp_path, progress=False)
-    for res in (again, mine):
+    memory = run_exercise("memory", file=five, budget="smoke", out=tmp_path, progress=False)
+    for res in (again, memory):
         assert res["model"] == first["model"] and res["success"] == first["success"]
         assert res["mean_steps"] == first["mean_steps"]
     assert (tmp_path / "actions" / "paper-smoke" / "result.json").is_file()
     with pytest.raises(AssertionError, match="a second time"):      # another seed: trained
         run_exercise("reward", baseline=True, budget="smoke", seed=1, out=tmp_path,
                      progress=False)
+    with pytest.raises(AssertionError, match="a second time"):      # a student's change:
+        run_exercise("reward", file=clip, budget="smoke", out=tmp_path, progress=False)
 
 
 def test_run_depth_exercise_smoke(tmp_path):

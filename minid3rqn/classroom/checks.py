@@ -79,9 +79,7 @@ def _small_pool():
     return FlightsConfig(n_worlds=2)          # 2 worlds, not 32: a check must be quick
 
 
-# =====================================================================================
-# Exercise 1: the reward
-# =====================================================================================
+# -- Exercise 1: the reward ------------------------------------------------------------
 D_GRID = np.array([0.5, 0.6, 0.8, 1.0, 1.5, 2.0, 3.0, 5.0, 8.0, 12.0])
 RATES = [0.0, 0.25, -0.25, 0.5, -0.5]            # the yaw rates of the paper's Table 3
 
@@ -210,9 +208,7 @@ def _reward_reaches_training(r, fn) -> None:
     r.ok(f"reaches the environment and the training flights (rewards {shown})")
 
 
-# =====================================================================================
-# Exercise 2: the action table
-# =====================================================================================
+# -- Exercise 2: the action table ------------------------------------------------------
 PAPER_ACTIONS = np.array([[2.0, 0.0], [2.0, 0.25], [2.0, -0.25], [2.0, 0.5], [2.0, -0.5]])
 
 
@@ -304,9 +300,7 @@ def _actions_reach_training(r, table: np.ndarray) -> None:
     r.ok(f"the Q-network's head has {n} outputs, one per action")
 
 
-# =====================================================================================
-# Exercise 3: the field of view
-# =====================================================================================
+# -- Exercise 3: the field of view -----------------------------------------------------
 @exercise(3, "fov", "Field of view: narrow the camera, D3RQN vs D3QN", "camera.py",
           "03_field_of_view.md", "agent")
 def check_fov(m, r):
@@ -337,9 +331,7 @@ def check_fov(m, r):
     r.summary = {"hfov_deg": fov}
 
 
-# =====================================================================================
-# Exercise 4: memory
-# =====================================================================================
+# -- Exercise 4: memory ----------------------------------------------------------------
 @exercise(4, "memory", "Memory: sequence length 1 vs 5 vs 10", "memory.py", "04_memory.md",
           "agent")
 def check_memory(m, r):
@@ -375,9 +367,7 @@ def check_memory(m, r):
     r.summary = {"seq_len": L}
 
 
-# =====================================================================================
-# Exercise 5: ablations (dueling, double-Q)
-# =====================================================================================
+# -- Exercise 5: ablations (dueling, double-Q) -----------------------------------------
 def _targets_reference(qo, qt, rew, term, gamma):
     best = np.argmax(qo, axis=-1)
     double = np.take_along_axis(qt, best[..., None], -1)[..., 0]
@@ -442,9 +432,7 @@ def check_ablation(m, r):
     r.summary = {"dueling": bool(dueling), "target": kind, "variant": variant}
 
 
-# =====================================================================================
-# Exercise 6: a new autograd op
-# =====================================================================================
+# -- Exercise 6: a new autograd op -----------------------------------------------------
 @exercise(6, "op", "Autograd: a new op (leaky ReLU) with its backward", "my_op.py",
           "06_autograd_op.md")
 def check_op(m, r):
@@ -507,9 +495,7 @@ def _op_backward(r, fn, x: np.ndarray) -> None:
     r.ok("records no graph inside no_grad()")
 
 
-# =====================================================================================
-# Exercise 7: the photometric error of the depth loss
-# =====================================================================================
+# -- Exercise 7: the photometric error of the depth loss -------------------------------
 @exercise(7, "depth-loss", "Depth: photometric loss L1 vs SSIM + L1", "photometric.py",
           "07_depth_loss.md", "depth")
 def check_photometric(m, r):
@@ -602,15 +588,13 @@ def _photometric_reaches_training(r, fn, rng) -> None:
          f"disparity)")
 
 
-# =====================================================================================
-# Exercise 8: errors in the depth seen in training
-# =====================================================================================
+# -- Exercise 8: errors in the depth seen in training ----------------------------------
 # The DispNet's error e = ln(predicted / GT depth) as measured on 1280 frames of test
-# flights (docs/beyond.md, "Two ways to make a GT-trained net robust to those errors"),
+# flights (docs/beyond.md, "What the analyses found"),
 # split as ``depth.evaluate.log_error_parts`` splits a student's.
 DISPNET_LOG_ERROR = {"total": 0.146, "per frame": 0.044, "per column": 0.103,
                      "per row": 0.038, "rest": 0.086}
-RESULTS_SECTION = '"Two ways to make a GT-trained net robust to those errors"'
+RESULTS_SECTION = '"What the analyses found"'
 TOO_STRONG = 0.5          # std of the log-depth error above which the checker warns
 
 
@@ -714,8 +698,10 @@ def _depth_edge_cases(r, fn, depth: np.ndarray, in_place: bool) -> None:
     """One frame, everything near, everything far."""
     _, H, W = depth.shape
     cases = [("a single frame, shape (1, 32, 104)", depth[:1].copy()),
-             ("a frame where everything is 0.4 m away (near)", np.full((1, H, W), 0.4, np.float32)),
-             ("a frame where everything is 30 m away (far)", np.full((1, H, W), 30.0, np.float32))]
+             ("a frame where everything is 0.4 m away (near)",
+              np.full((1, H, W), 0.4, np.float32)),
+             ("a frame where everything is 30 m away (far)",
+              np.full((1, H, W), 30.0, np.float32))]
     for name, d in cases:
         xd = d.copy()
         what = f"corrupt on {name}"
@@ -748,8 +734,8 @@ def _depth_error_size(r, fn, what: str, depth: np.ndarray, y: np.ndarray) -> Non
         r.note(f"a std of {parts['total']:.2f} in ln(depth) (a typical depth off by a "
                f"factor {math.exp(parts['total']):.2f}) is probably too strong: the "
                f"DispNet's is {DISPNET_LOG_ERROR['total']}, and a smooth noise of std "
-               f"about 0.38 in training already cost flights on GT depth "
-               f"(docs/beyond.md, {RESULTS_SECTION})")
+               f"about 0.38 in training already cost flights on GT depth (docs/beyond.md, "
+               f"\"What did not help, and the options removed\")")
     y3 = np.asarray(call(r, what + " with another seed", fn, depth.copy(),
                          np.random.default_rng(1)))
     if y3.shape == y.shape and np.array_equal(y3, y):
