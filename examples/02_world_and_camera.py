@@ -2,10 +2,14 @@
 
 For every scenario it writes ``world_<scenario>.png``: the top view with the flight, the
 drone and its field of view (left), and the camera's RGB frame above its ground-truth
-depth, red near to blue far (right, enlarged 4x). Runs in seconds.
+depth, red near to blue far (right, enlarged 4x). Then ``fov.png``: one pose with many
+obstacles in view, seen by a 90, 60 and 45 degree camera (the image keeps its size,
+only the focal length changes: exercise 3), one row each: top view with the field of
+view | camera RGB | GT depth. Runs in seconds.
 
-    python examples/02_world_and_camera.py --out docs/img --seed 0
-    python examples/02_world_and_camera.py --smoke            # fewer steps, into ./out
+    python examples/02_world_and_camera.py [--out runs/examples/02_world_and_camera] [--seed 0]
+    python examples/02_world_and_camera.py --out docs/img     # the pictures of the docs
+    python examples/02_world_and_camera.py --smoke            # fewer steps
 """
 import argparse
 from pathlib import Path
@@ -13,7 +17,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from minid3rqn.world import SCENARIOS, Camera, DroneEnv, Oracle, depth_to_rgb, topdown
+from minid3rqn import viz
+from minid3rqn.world import (SCENARIOS, Camera, DroneEnv, Oracle, depth_to_rgb, make_scene,
+                             render_batch, sample_start_pose, topdown)
 
 
 def panel(env, trajectory, rgb, depth, scale=4):
@@ -33,15 +39,40 @@ def panel(env, trajectory, rgb, depth, scale=4):
     return out
 
 
+def fov_picture(path, seed: int = 0, fovs=(90.0, 60.0, 45.0), height: int = 256):
+    """The same pose seen with each horizontal field of view in ``fovs`` (degrees): the
+    pose of 48 random ones in a basic world with the most varied depth along the horizon
+    and nothing closer than 1.5 m."""
+    scene = make_scene("basic", seed)
+    rng = np.random.default_rng(seed)
+    poses = np.stack([sample_start_pose(scene, rng) for _ in range(48)])
+    _, d = render_batch(scene, poses, Camera(16, 52, 90.0))
+    horizon = d[:, 7:9].mean(axis=1)                       # (48, 52): depth along the horizon
+    varied = np.abs(np.diff(np.clip(horizon, 0, 10), axis=1)).sum(axis=1)
+    pose = poses[int(np.argmax(np.where(horizon.min(axis=1) > 1.5, varied, -np.inf)))]
+    rows = []
+    for fov in fovs:
+        cam = Camera(64, 208, fov)
+        rgb, depth = render_batch(scene, pose[None], cam)
+        top = np.asarray(topdown(scene, pose=pose, camera=cam, size=300, fov_range=8.0))
+        rows.append(viz.hstack([viz.label(viz.resize(top, height), f"{fov:g} deg"),
+                                viz.label(viz.resize(rgb[0], height), "camera"),
+                                viz.label(viz.resize(depth_to_rgb(depth[0], 1.5, 10.0), height),
+                                          "GT depth (red near, blue far)")], height))
+    gap = np.full((6, rows[0].shape[1], 3), 255, np.uint8)
+    Image.fromarray(np.concatenate([x for r in rows for x in (r, gap)][:-1])).save(path)
+    return path
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default=None, help="output folder (default docs/img, "
-                                                    "or ./out with --smoke)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--steps", type=int, default=12)
+    parser.add_argument("--out", default="runs/examples/02_world_and_camera",
+                        help="folder for the pictures")
+    parser.add_argument("--seed", type=int, default=0, help="world seed")
+    parser.add_argument("--steps", type=int, default=12, help="steps the oracle flies")
     parser.add_argument("--smoke", action="store_true", help="3 steps, a quick check")
     args = parser.parse_args(argv)
-    out = Path(args.out or ("out" if args.smoke else "docs/img"))
+    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     steps = 3 if args.smoke else args.steps
     for name in SCENARIOS:
@@ -59,6 +90,7 @@ def main(argv=None):
         print(f"{name:14s} world seed {env.scene_seed}: {len(trajectory) - 1} steps, "
               f"d_nearest {info['d_nearest']:.2f} m, depth {info['depth'].min():.2f}.."
               f"{info['depth'].max():.2f} m -> {path}")
+    print(f"the same pose at 90, 60 and 45 degrees -> {fov_picture(out / 'fov.png', args.seed)}")
 
 
 if __name__ == "__main__":

@@ -23,11 +23,10 @@ from minid3rqn.rl.evaluate import evaluate_policy
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--smoke", action="store_true")
-    p.add_argument("--flights", type=int, default=200)
-    p.add_argument("--model", default=str(SHIPPED_QNET))
-    p.add_argument("--scenario", default="basic")
-    p.add_argument("--out", default=None, help="unused; accepted for symmetry with 04")
+    p.add_argument("--smoke", action="store_true", help="8 flights of 20 steps (tests)")
+    p.add_argument("--flights", type=int, default=200, help="test flights per policy")
+    p.add_argument("--model", default=str(SHIPPED_QNET), help="a Q-net .npz to fly too")
+    p.add_argument("--scenario", default="basic", help="the test worlds")
     args = p.parse_args()
     n = 8 if args.smoke else args.flights
     specs = ["straight", "random", "reactive"]

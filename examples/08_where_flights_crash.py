@@ -18,7 +18,7 @@ turning toward what it passed. The pilot is a Q-net .npz, several joined by '+' 
 ensemble), or a baseline (straight, random, reactive, oracle).
 
     python examples/08_where_flights_crash.py [--smoke] [--policy M.npz] \\
-        [--scenarios basic channel intersections corners] [--flights 2000] \\
+        [--scenarios basic channel intersections corners] [--flights 1000] \\
         [--seed 12345] [--depth gt|pred]
 
 With ``--depth pred`` each world is seen through its shipped DispNet
@@ -97,12 +97,14 @@ def summarise(crashes: np.ndarray) -> str:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--policy", default=str(MODELS / "d3rqn_basic.npz"))
-    ap.add_argument("--scenarios", nargs="+",
+    ap.add_argument("--policy", default=str(MODELS / "d3rqn_basic.npz"),
+                    help="a Q-net .npz, several joined by '+', or a baseline")
+    ap.add_argument("--scenarios", nargs="+", help="the worlds to fly",
                     default=["basic", "channel", "intersections", "corners"])
-    ap.add_argument("--flights", type=int, default=2000)
-    ap.add_argument("--seed", type=int, default=12345)
-    ap.add_argument("--depth", choices=["gt", "pred"], default="gt")
+    ap.add_argument("--flights", type=int, default=1000, help="test flights per scenario")
+    ap.add_argument("--seed", type=int, default=12345, help="evaluation seed")
+    ap.add_argument("--depth", choices=["gt", "pred"], default="gt",
+                    help="GT depth, or each world's shipped DispNet")
     ap.add_argument("--smoke", action="store_true", help="a few flights in one world")
     args = ap.parse_args(argv)
     if args.smoke:

@@ -24,7 +24,8 @@ flown by the late-turning pilot, with the true motion between the frames (odomet
 At 32x104 pixels and with the world's evenly coloured surfaces the sweep's answer is
 weak, and weakest straight ahead, where a drone needs it most.
 
-    python examples/09_plane_sweep.py [--smoke] [--frames 400] [--seed 77] [--out .]
+    python examples/09_plane_sweep.py [--smoke] [--frames 400] [--seed 77] \\
+        [--out runs/examples/09_plane_sweep]
 
 Ground truth is used only to score; nothing is trained.
 """
@@ -67,7 +68,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=400, help="frames flown (fresh worlds)")
     ap.add_argument("--seed", type=int, default=77)
     ap.add_argument("--planes", type=int, default=12, help="depths swept, 0.5-12 m")
-    ap.add_argument("--out", default=".")
+    ap.add_argument("--out", default="runs/examples/09_plane_sweep", help="folder for the picture")
     ap.add_argument("--smoke", action="store_true", help="60 frames: a quick check")
     args = ap.parse_args()
     frames = 60 if args.smoke else args.frames
@@ -104,6 +105,7 @@ def main() -> None:
         [seq.rgb[idx[r]], depth_to_rgb(sweep[r]), depth_to_rgb(dispnet[r]),
          depth_to_rgb(truth[r])], axis=1) for r in rows], axis=0)
     out = Path(args.out) / "plane_sweep.png"
+    out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(picture).resize((picture.shape[1] * 3, picture.shape[0] * 3),
                                     Image.NEAREST).save(out)
     print(f"wrote {out}: RGB | the sweep's answer | DispNet | GT, one frame per row")

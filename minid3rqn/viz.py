@@ -58,6 +58,32 @@ def depth_to_rgb(depth, near: float = 0.5, far: float = 12.0, log: bool = False)
     return ((ramp[i] * (1 - w) + ramp[i + 1] * w) * 255 + 0.5).astype(np.uint8)
 
 
+def depth_key(width: int, near: float = 0.5, far: float = 12.0, log: bool = False,
+              height: int = 24) -> np.ndarray:
+    """The colour key of ``depth_to_rgb(..., near, far, log)``: a bar from ``near`` (left)
+    to ``far`` (right) in its colours, with ticks in metres under it; (height, width, 3)
+    uint8. The ticks fall on a simple step (0.5, 1, 2, 5 ... m; at most six), the ends
+    included."""
+    x = np.linspace(0.0, 1.0, width)
+    metres = near * (far / near) ** x if log else near + x * (far - near)
+    im = Image.new("RGB", (width, height), (255, 255, 255))
+    im.paste(Image.fromarray(depth_to_rgb(np.repeat(metres[None], 8, 0), near, far, log)))
+    draw, font = ImageDraw.Draw(im), ImageFont.load_default()
+    step = next(s for s in (0.5, 1, 2, 5, 10, 20, 50, 100) if (far - near) / s <= 5)
+    inside = np.arange(np.ceil(near / step) * step, far, step) if not log else \
+        np.array([1, 2, 5, 10, 20, 50])
+    gap = step / 2 if not log else 0.0
+    ticks = [near, *(float(t) for t in inside if near + gap < t < far - gap), far]
+    for k, t in enumerate(ticks):
+        u = (np.log(t / near) / np.log(far / near)) if log else (t - near) / (far - near)
+        px = int(round(u * (width - 1)))
+        text = f"{t:g}" + (" m" if k == len(ticks) - 1 else "")
+        w = draw.textlength(text, font=font)
+        draw.line([(px, 8), (px, 10)], fill=(0, 0, 0))
+        draw.text((min(max(px - w / 2, 0), width - w), 11), text, fill=(0, 0, 0), font=font)
+    return np.asarray(im)
+
+
 def resize(img: np.ndarray, height: int, width: int | None = None) -> np.ndarray:
     """Nearest-neighbour resize of an RGB/grey uint8 image to (height, width)."""
     im = Image.fromarray(np.asarray(img))
@@ -204,5 +230,5 @@ def learning_curve_png(rows, path, title: str = "") -> Path:
     return path
 
 
-__all__ = ["colormap", "depth_to_rgb", "resize", "to_rgb", "hstack", "label", "bar_chart",
-           "write_gif", "line_plot", "learning_curve_png"]
+__all__ = ["colormap", "depth_to_rgb", "depth_key", "resize", "to_rgb", "hstack", "label",
+           "bar_chart", "write_gif", "line_plot", "learning_curve_png"]

@@ -53,3 +53,12 @@ def test_the_paper_and_the_budget_come_first_in_train_agent_help(capsys):
     groups = [out.index(title) for title in ("the paper's settings:", "budget (scaled",
                                              "the run:", "other settings:")]
     assert groups == sorted(groups) and "--batch-size" in out and "--gamma" in out
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_every_option_has_help(name):
+    from minid3rqn.cli import build_parser
+    parser = build_parser(only=name)
+    sub = next(a for a in parser._actions if a.dest == "command").choices[name]
+    silent = [a.option_strings or a.dest for a in sub._actions if not (a.help or "").strip()]
+    assert not silent, f"{name}: options without help text: {silent}"

@@ -3,6 +3,7 @@
 The numbered examples of the learning path (docs/README.md) are expected; one
 that does not exist yet is skipped with a note, and any other examples/*.py is run too.
 """
+import importlib.util
 import os
 import subprocess
 import sys
@@ -10,6 +11,7 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.examples
@@ -45,3 +47,22 @@ def test_example_smoke(name, tmp_path):
                                   f"--- stderr ---\n{proc.stderr[-3000:]}")
     if seconds > SMOKE_SECONDS:
         warnings.warn(f"examples/{name} --smoke took {seconds:.0f} s (> {SMOKE_SECONDS} s)")
+
+
+def load_example(name: str):
+    """An example script as a module (its main() is not run)."""
+    spec = importlib.util.spec_from_file_location(f"example_{name[:2]}", EXAMPLES / name)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_warp_picture_tells_the_truth(tmp_path):
+    """Example 03's first picture: warped with the true depth and motion, the previous
+    frame matches the target better than unwarped or warped with half the depth."""
+    example = load_example("03_train_depth.py")
+    rows = example.warp_rows(seed=0, height=32, width=104)
+    err = {name: float(np.mean(e[valid])) for name, _, _, e, valid in rows}
+    true, none, wrong = err["true depth, true motion"], err["no warp"], err["depth x 0.5"]
+    assert true < 0.5 * none and true < wrong, err
+    assert example.warp_picture(tmp_path / "warp.png").is_file()

@@ -2,9 +2,9 @@
 
 The DispNet's error e = ln(predicted / GT depth), measured in this project, has a std of
 0.146, split into a part per frame (std 0.044), per column (0.103), per row (0.038) and a
-finer rest (0.086) (docs/experiments.md, "Two ways to make a GT-trained net robust to those
-errors"). This corruption draws an error with those four parts, afresh for every frame,
-and returns depth * exp(e) (positive for any e):
+finer rest (0.086) (docs/beyond.md, "What the analyses found"). This corruption draws an
+error with those four parts, afresh for every frame, and returns depth * exp(e)
+(positive for any e):
 
     e(v, u) = a + b(u) + c(v) + r(v, u)
     a     one number per frame,                         std 0.044
@@ -14,11 +14,11 @@ and returns depth * exp(e) (positive for any e):
 
 What is measured is only the size of each part. The rest is a guess, to discuss: that
 the errors are Gaussian in ln(depth), independent of the depth itself (the costly ones
-are at 2-4 m: docs/experiments.md, "Which depth errors cost flights"), that the per-column
-part varies smoothly over about 15 columns (13 degrees), and that the rest is pixel
-noise (a DispNet's finer errors probably come in patches). The library's
-``train-agent --depth-noise`` (rl/flights.py, ``Flights.depth_error``) is a cousin of
-this: three smooth parts of sizes S/2, S, S and no pixel noise.
+are at 2-4 m: the same section), that the per-column part varies smoothly over about 15
+columns (13 degrees), and that the rest is pixel noise (a DispNet's finer errors probably
+come in patches). The former ``train-agent --depth-noise S`` (docs/beyond.md, "What did
+not help, and the options removed") was a cousin of this: three smooth parts of sizes
+S/2, S, S and no pixel noise.
 
 A smooth part is drawn at a few evenly spaced knots and linearly interpolated. A point
 between two independent knots has less variance than a knot (on average along the way,

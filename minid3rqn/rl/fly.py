@@ -1,7 +1,8 @@
 """The main job: fly a trained model in fresh worlds, write a GIF and a success rate.
 
 GIF panels, one frame per step of flight 0:  top view (obstacles, path, heading) |
-camera RGB | depth the Q-net sees | Q-values (chosen action highlighted).
+camera RGB | depth the Q-net sees, over its colour key in metres | Q-values (chosen
+action highlighted).
 """
 from __future__ import annotations
 
@@ -84,7 +85,9 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
             render_batch(scene, obs["poses"][k:k + 1], flights.camera)[0][0]
         bars = viz.bar_chart(policy.last_q[k], names, (160, 120), int(actions[k]),
                              title=f"Q-values, step {t + 1}")
-        panels = [rgb, viz.depth_to_rgb(obs["depth"][k], 0.5, max_depth), bars]
+        depth = viz.resize(viz.depth_to_rgb(obs["depth"][k], 0.5, max_depth), 192 - 24)
+        key = viz.depth_key(depth.shape[1], 0.5, max_depth, height=24)    # metres
+        panels = [rgb, np.concatenate([depth, key]), bars]
         top = np.asarray(topdown(scene, np.array(path), obs["poses"][k], flights.camera, 192))
         frames_out.append(viz.hstack([top] + panels, 192))
         path.append(flights.poses[k].copy())

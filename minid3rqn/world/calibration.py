@@ -94,9 +94,11 @@ def calibrate(scenarios=SCENARIOS, n_flights: int = 2000, seed: int = 0, policie
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The command-line options (also used by ``python -m minid3rqn calibrate``)."""
-    parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
+    parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS,
+                        help="the scenarios to fly (default: all)")
     parser.add_argument("--n-flights", type=int, default=2000, help="flights per cell")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0,
+                        help="flight k flies the world and pose of the seed sequence [seed, k]")
 
 
 def run(args) -> int:

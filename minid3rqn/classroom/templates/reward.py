@@ -13,8 +13,6 @@ Rules the checker enforces (python -m minid3rqn check reward):
   * the trainer calls reward() once per step for ALL flights at once, with NumPy arrays
     (d_nearest float array, collided bool array, yaw_rate float array); use np.where,
     np.minimum, np.abs ... and never `if collided:`;
-  * it also calls reward(d, collided) with plain numbers and no yaw_rate, so keep the
-    default yaw_rate=0.0;
   * a collision must give a reward below every non-collision reward.
 
 Then: python -m minid3rqn exercise reward            (your reward)

@@ -3,12 +3,12 @@
 The Q-net is trained on ground-truth (GT) depth maps but, in the paper's pipeline, flies
 on the depth network's (DispNet's) predicted depth, which is wrong in places. In this
 project a D3RQN trained on GT depth flies 0.949 of the test flights on GT depth and
-0.835 on predicted depth (docs/beyond.md, "Which depth errors cost flights"). The
-DispNet's error in ln(depth) has a std of 0.146, which splits into a part per frame
-(std 0.044), per column (0.103), per row (0.038) and a finer rest (0.086) (docs/beyond.md,
-"Two ways to make a GT-trained net robust to those errors"). The errors that cost
-flights are at 2-4 m, in the shape of the depth map rather than its overall scale,
-and all over the view.
+0.835 on predicted depth (docs/beyond.md, "What the analyses found"). The DispNet's
+error in ln(depth) has a std of 0.146, which splits into a part per frame (std 0.044),
+per column (0.103), per row (0.038) and a finer rest (0.086) (the same section). The
+errors that cost flights are at 2-4 m, in the shape of the depth map rather than its
+overall scale, and all over the view. (At the classroom's budget the paper's setting
+flies about as well on predicted depth as on GT depth: docs/exercises/08_depth_errors.md.)
 
 Your task: write `corrupt`, a random corruption of the GT depth that the Q-net sees
 while it TRAINS (the test flights are never corrupted), so that the trained net flies
@@ -31,6 +31,8 @@ depth * np.exp(e) stays positive):
     python -m minid3rqn exercise depth-errors --baseline   (trained on clean GT depth)
 
 Rules the checker enforces:
+  * change the depth: returning it unchanged is the paper's setting, which
+    `exercise depth-errors --baseline` already trains;
   * return an array of the input's shape (n, 32, 104), of positive, finite depths;
   * do not modify `depth` in place (no `depth *= ...`, no `depth[...] = ...`): return
     a new array;
@@ -58,4 +60,4 @@ def corrupt(depth, rng):
     Returns:
         An array of the same shape (n, H, W): the corrupted depths, positive and finite.
     """
-    return depth        # no corruption: the paper's setting (train on clean GT depth)
+    return depth        # no corruption yet: the paper's setting (clean GT depth). Yours here.

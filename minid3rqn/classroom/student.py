@@ -1,0 +1,221 @@
+"""A student's file: where it is, loading it, calling into it, and what the checks found.
+
+A student edits ``exercises/<file>.py``, a copy of the template in
+``minid3rqn/classroom/templates/`` made by the first ``check`` or ``exercise`` (the
+templates themselves stay as shipped: the tests check the checkers against them). The
+file is imported under a private module name, so two versions (the template and a
+solution) can be loaded side by side. Every call into it goes through ``call``: a time
+limit, and whatever goes wrong (an exception, an endless loop, ``sys.exit()``, a Ctrl-C)
+becomes one readable line naming the line of the student's file, never a traceback.
+
+A ``Report`` collects one line per check: ``ok`` (passed), ``fail`` (must be fixed, with
+a hint on how) or ``note`` (worth knowing, not an error). A check that cannot go on (the
+file does not load, the function is missing) raises ``Stop`` after recording its
+failure, so that later checks do not pile confusing errors on the first one.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import inspect
+import shutil
+import signal
+import sys
+import textwrap
+import threading
+import traceback
+from contextlib import contextmanager
+from pathlib import Path
+
+from ..autograd import GradcheckError
+
+TEMPLATES = Path(__file__).resolve().parent / "templates"
+TIME_LIMIT = 10.0          # seconds for any one call into the student's code
+
+
+class Stop(Exception):
+    """Raised inside a checker to end it early; the failure is already recorded."""
+
+
+class TooSlow(BaseException):
+    """The time limit ran out (a BaseException: a student's ``except Exception`` must
+    not swallow it)."""
+
+
+class Report:
+    """What a checker found. ``passed`` is True when no line failed."""
+
+    def __init__(self, exercise: str, path=None, template: Path | None = None):
+        self.exercise, self.template = exercise, template
+        self.path = None if path is None else str(path)
+        self.lines: list[tuple[str, str]] = []
+        self.summary: dict = {}           # what the check found out, for the runner
+        self.module = None                # the student's module, once loaded
+
+    def ok(self, text: str) -> None:
+        self.lines.append(("ok", text))
+
+    def note(self, text: str) -> None:
+        self.lines.append(("note", text))
+
+    def fail(self, text: str, hint: str | None = None, stop: bool = False) -> None:
+        self.lines.append(("FAIL", text if hint is None else f"{text}\nHint: {hint}"))
+        if stop:
+            raise Stop(text)
+
+    @property
+    def passed(self) -> bool:
+        return not self.failures
+
+    @property
+    def failures(self) -> list[str]:
+        return [text for kind, text in self.lines if kind == "FAIL"]
+
+    @property
+    def messages(self) -> str:
+        """All lines as one string (handy in tests: ``"still the paper's" in r.messages``)."""
+        return "\n".join(text for _, text in self.lines)
+
+    def text(self, next_step: str | None = None) -> str:
+        out = [f"Exercise {self.exercise}" + (f": checking {self.path}" if self.path else "")]
+        for kind, text in self.lines:
+            tag = {"ok": "[ok]  ", "note": "[note]", "FAIL": "[FAIL]"}[kind]
+            out.append(f"  {tag} " + textwrap.indent(text, " " * 9).lstrip())
+        n = len(self.failures)
+        out.append(f"NOT YET: {n} problem{'s' if n > 1 else ''} to fix (see [FAIL] above), "
+                   f"then run the check again." if n else
+                   "PASSED." + (f" Next: {next_step}" if next_step else ""))
+        return "\n".join(out)
+
+    def __repr__(self) -> str:
+        return f"Report({self.exercise!r}, passed={self.passed}, lines={len(self.lines)})"
+
+
+def working_copy(filename: str) -> Path:
+    """``exercises/<filename>`` under the current folder, copied from the template first
+    if it is not there yet (delete it to start over)."""
+    path = Path("exercises") / filename
+    if not path.is_file():
+        path.parent.mkdir(exist_ok=True)
+        shutil.copyfile(TEMPLATES / filename, path)
+        print(f"{path}: a fresh copy of the template, yours to edit")
+    return path
+
+
+def where_in(path, exc: BaseException) -> str:
+    """' (your file, line N: <code>)' for the deepest frame inside ``path``, else ''."""
+    target = str(Path(path).resolve()) if path else None
+    found = ""
+    for frame in traceback.extract_tb(exc.__traceback__):
+        if target and str(Path(frame.filename).resolve()) == target:
+            code = (frame.line or "").strip()
+            found = f" (your file, line {frame.lineno}" + (f": {code})" if code else ")")
+    return found
+
+
+def describe(exc: BaseException, path=None) -> str:
+    """'TypeError: message (your file, line 12: ...)'."""
+    return f"{type(exc).__name__}: {exc}{where_in(path, exc)}"
+
+
+@contextmanager
+def time_limit(seconds: float):
+    """Raise ``TooSlow`` after ``seconds`` (with SIGALRM, in the main thread; where
+    there is none, such as on Windows, without a limit)."""
+    if not hasattr(signal, "setitimer") or threading.current_thread() is not \
+            threading.main_thread():
+        yield
+        return
+
+    def expire(signum, frame):
+        raise TooSlow()
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def call(report: Report, what: str, fn, *args, hint: str | None = None, **kwargs):
+    """``fn(*args, **kwargs)`` under the time limit. If it does not return normally, record
+    a failure naming ``what`` (with ``hint``, or one that fits the error) and ``Stop``."""
+    _check_arguments(report, what, fn, args, kwargs)
+    path = report.path
+    try:
+        with time_limit(TIME_LIMIT):
+            return fn(*args, **kwargs)
+    except Stop:
+        raise
+    except TooSlow:
+        report.fail(f"{what} took longer than {TIME_LIMIT:g} s: an infinite loop?", stop=True)
+    except SystemExit as e:
+        report.fail(f"{what} called exit() (SystemExit: {e.code}){where_in(path, e)}",
+                    hint="remove sys.exit() / exit() / quit(): return a value instead",
+                    stop=True)
+    except KeyboardInterrupt as e:
+        report.fail(f"{what} was interrupted (Ctrl-C){where_in(path, e)}", stop=True)
+    except GradcheckError as e:
+        report.fail(f"gradcheck failed on {what}: {e}", hint=hint, stop=True)
+    except NotImplementedError as e:
+        report.fail(f"not written yet: {what} raised {describe(e, path)}",
+                    hint="this part is yours to write: replace the `raise "
+                         "NotImplementedError(...)` line by your code", stop=True)
+    except Exception as e:  # noqa: BLE001 - report anything the student's code raises
+        if isinstance(e, ValueError) and "truth value of an array" in str(e):
+            hint = ("the code is called with arrays (one entry per flight): replace `if x:` / "
+                    "`and` / `or` by np.where(...), np.logical_and(...), ...")
+        report.fail(f"{what} raised {describe(e, path)}", hint=hint, stop=True)
+
+
+def _check_arguments(report: Report, what: str, fn, args, kwargs) -> None:
+    """If ``fn`` is defined in the student's file, fail unless it accepts ``args``."""
+    code = getattr(fn, "__code__", None)
+    if code is None or report.path is None or \
+            Path(code.co_filename).resolve() != Path(report.path).resolve():
+        return
+    try:
+        inspect.signature(fn).bind(*args, **kwargs)
+    except TypeError as e:
+        lines = report.template.read_text().splitlines() if report.template else []
+        line = next((s.rstrip(":") for s in lines if s.startswith(f"def {fn.__name__}(")), None)
+        report.fail(f"{what}: your {fn.__name__}{inspect.signature(fn)} cannot be called "
+                    f"this way ({e})",
+                    hint=line and f"keep the template's arguments: {line}", stop=True)
+
+
+def load(path, report: Report):
+    """Import the file at ``path``; on any problem record a failure and ``Stop``."""
+    path = Path(path)
+    if not path.is_file():
+        report.fail(f"file not found: {path}",
+                    hint="run the check from the repository root, or pass the file with "
+                         "--file path/to/your_file.py", stop=True)
+    digest = hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:10]
+    name = f"_minid3rqn_student_{path.stem}_{digest}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        compile(path.read_text(), str(path), "exec")
+    except SyntaxError as e:
+        report.fail(f"Python cannot read {path.name}: {e.msg} at line {e.lineno}"
+                    + (f": {e.text.strip()}" if e.text else ""),
+                    hint="look for a missing bracket, colon or a wrong indentation there",
+                    stop=True)
+    call(report, f"importing {path.name}", spec.loader.exec_module, module)
+    sys.modules.pop(name, None)
+    report.ok(f"{path.name} loads")
+    return module
+
+
+def get(report: Report, module, name: str, function: bool = False):
+    """``module.name``; a failure and ``Stop`` if it is missing (or not a function)."""
+    if not hasattr(module, name):
+        report.fail(f"{Path(report.path).name} defines no `{name}`",
+                    hint=f"keep the name `{name}` from the template", stop=True)
+    value = getattr(module, name)
+    if function and not callable(value):
+        report.fail(f"`{name}` must be a function; got {type(value).__name__}", stop=True)
+    return value
