@@ -13,7 +13,7 @@ from minid3rqn.depth.geometry import (check_intrinsics, inverse_warp, matrix_to_
 from minid3rqn.depth.losses import (LossConfig, l1_error, photometric_error,
                                     reconstruction_errors, view_synthesis_loss)
 from minid3rqn.depth.train import TrainConfig, Trainer
-from minid3rqn.world import Camera, make_scene, render_batch
+from minid3rqn.world import Camera
 from minid3rqn.world.geometry import inverse_warp_numpy, relative_transform
 
 pytestmark = pytest.mark.depth

@@ -21,7 +21,7 @@ pytestmark = pytest.mark.depth
 ROOT = Path(__file__).resolve().parent.parent
 ENV = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT),
                                                                os.environ.get("PYTHONPATH")])))
-SMOKE = ["--frames", "60", "--iterations", "3", "--set", "test_frames=30", "--quiet"]
+SMOKE = ["--frames", "60", "--iterations", "3", "--set", "test_frames=30"]
 
 
 def _run(argv):

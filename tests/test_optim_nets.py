@@ -2,7 +2,6 @@
 import numpy as np
 import pytest
 
-from minid3rqn import autograd as ag
 from minid3rqn.autograd import Tensor, gradcheck
 from minid3rqn.autograd.optim import Adam, clip_grad_norm
 from minid3rqn.autograd.losses import huber_loss, mse_loss

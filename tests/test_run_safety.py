@@ -239,7 +239,7 @@ def test_frames_collected_with_other_settings_are_not_read_as_the_runs_own(tmp_p
     collect_sequence(CollectConfig(frames=20, frames_per_flight=10), tmp_path / "d" /
                      "train.npz", progress=False)
     small = ["train-depth", "--frames", "30", "--iterations", "1", "--set", "test_frames=12",
-             "--set", "eval_every=0", "--quiet", "--dir", str(tmp_path / "d")]
+             "--set", "eval_every=0", "--dir", str(tmp_path / "d")]
     assert main(small) == 2
     assert "frames 20 (now 30)" in capsys.readouterr().err
     assert main([*small, "--overwrite"]) == 0

@@ -116,7 +116,7 @@ def check_reward(m, r):
     worst = min(safe.values())
     bad = [w for w, v in hit.items() if not v < worst]
     if bad:
-        r.fail(f"a collision must be worse than any safe step: reward(0.3, True"
+        r.fail("a collision must be worse than any safe step: reward(0.3, True"
                + (f", {bad[0]}" if sees_yaw else "") + f") = {hit[bad[0]]:g}, but a safe step "
                f"can earn as little as {worst:g}",
                hint="keep -1 on collision (np.where(collided, -1.0, ...)), and make sure "

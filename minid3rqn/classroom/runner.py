@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .checks import EXERCISES, Exercise, find
+from .checks import Exercise, find
 from .student import working_copy
 
 OUT = Path("runs/classroom")

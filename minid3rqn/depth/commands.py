@@ -102,7 +102,6 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
                    help="fine-tune: start from this checkpoint or model file's DispNet "
                         "(e.g. minid3rqn/models/depth_basic.npz)")
     add_existing_option(p, grows="--iterations")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 # What a train-depth run writes in its folder (--overwrite deletes them; the frames stay)
@@ -180,7 +179,7 @@ def run_train_depth(args) -> int:
     for path in stale:                   # --overwrite: frames of other settings go
         path.unlink()
     train_depth(cfg, data, run_dir, args.data, args.test_data, args.init_from,
-                resume=how == "resume", progress=not args.quiet)
+                resume=how == "resume", progress=sys.stderr.isatty())
     meta = json.loads((run_dir / "results.json").read_text())
     print(json.dumps({"scenario": data.scenario, "seed": cfg.seed,
                       "train_seconds": meta["train_seconds"],

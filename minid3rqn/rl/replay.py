@@ -150,7 +150,6 @@ class EpisodeReplay:
 
     def _gather(self, streams: np.ndarray, starts: np.ndarray, L: int,
                 stack: int) -> SequenceBatch:
-        B = len(streams)
         H, W = self.frame_shape
         offs = np.arange(L)
         idx = starts[:, None] + offs[None, :]                       # (B, L) transitions

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import (as_dict, at_least, between, changed_settings, flat_settings, one_of,
+from ..config import (as_dict, at_least, between, changed_settings, flat_settings,
                       positive, setting, validate)
 from ..io import RunStopped, StopRequest, load_npz, save_npz
 from ..nets.qnet import QNetConfig

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .distance import nearest_distance
 from .scene import Scene, SceneBuilder
 from .textures import (LATTICE_SIZE, hsv_to_rgb, make_appearance, random_appearance)
 
