@@ -5,6 +5,7 @@ on this machine, as a student runs them.
     python benchmarks/bench_examples.py                      # all of them (about 25 min)
     python benchmarks/bench_examples.py --only 01 05 reward  # some
     python benchmarks/bench_examples.py --only 04-full       # example 04's full run, alone
+    python benchmarks/bench_examples.py --only reproduce-quick   # Tables 5 and 6, quick
 
 Run it from the repository's root. Each command runs with OMP_NUM_THREADS=1, this
 tree's package, and a fresh temporary folder as its working directory (outputs, and the
@@ -30,8 +31,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 # the classroom exercises with a run (exercise 6, the autograd op, is its check)
 EXERCISES = ("reward", "actions", "fov", "memory", "ablation", "depth-loss", "depth-errors")
-# timed only when named in --only: example 04's full training (about 14 minutes)
-LONG = ("04-full",)
+# timed only when named in --only: example 04's full training (about 14 minutes) and the
+# quick reproduction (two processes: it needs the machine's two cores to itself)
+LONG = ("04-full", "reproduce-quick")
 
 
 def commands() -> dict[str, list[str]]:
@@ -41,6 +43,7 @@ def commands() -> dict[str, list[str]]:
     return {**{Path(p).name[:2]: [py, p] for p in ex},
             "04-full": [py, str(ROOT / "examples" / "04_train_d3rqn.py"), "--full"],
             "fly": [py, "-m", "minid3rqn", "fly", "--seed", "0"],
+            "reproduce-quick": [py, "-m", "minid3rqn", "reproduce", "--quick", "--workers", "2"],
             **{name: [py, "-m", "minid3rqn", "exercise", name, "--baseline"]
                for name in EXERCISES}}
 

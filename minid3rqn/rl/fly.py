@@ -36,7 +36,7 @@ class FlyConfig:
     flights: int = setting(32, "flights for the success rate (the DispNet runs on every "
                                "frame: keep it small)", source="run", check=at_least(1))
     seed: int | None = setting(None, "world seed (none: random)", source="run")
-    gif: str = setting("fly.gif", "the GIF of flight 0", source="run")
+    gif: str = setting("runs/fly.gif", "the GIF of flight 0", source="run")
     mirror: bool = setting(False, "each Q-net also flies the mirrored view (a free "
                                   "two-member ensemble)", cli="main")
     flip_tta: bool = setting(False, "the DispNet's disparity averaged with its disparity on "
@@ -53,7 +53,7 @@ def action_names(actions) -> list[str]:
 
 
 def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flights: int = 200,
-        gif="fly.gif", max_steps: int = 50, mirror: bool = False) -> dict:
+        gif="runs/fly.gif", max_steps: int = 50, mirror: bool = False) -> dict:
     """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate.
     ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q), or
     the loaded policies; they fly with the action table and camera they were trained
