@@ -396,9 +396,3 @@ def command_line(cls, cfg, base=None, main: tuple | None = None) -> list[str]:
         else:
             out += ["--set", f"{name}={text}"]
     return out
-
-
-__all__ = ["setting", "validate", "ConfigError", "UsageError", "add_arguments",
-           "from_args", "build", "as_dict", "command_line", "at_least", "between",
-           "positive", "one_of", "all_at_least", "flag", "flat_settings", "changed_settings",
-           "add_existing_option"]

@@ -228,7 +228,3 @@ def learning_curve_png(rows, path, title: str = "") -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(out).save(path)
     return path
-
-
-__all__ = ["colormap", "depth_to_rgb", "depth_key", "resize", "to_rgb", "hstack", "label",
-           "bar_chart", "write_gif", "line_plot", "learning_curve_png"]

@@ -84,6 +84,3 @@ def run_exercise(args) -> int:
     result = run(args.exercise, file=args.file, baseline=args.baseline, budget=args.budget,
                  variant=args.variant, seed=args.seed, progress=sys.stderr.isatty())
     return 0 if result.get("passed", True) else 1
-
-
-__all__ = ["add_arguments_check", "run_check", "add_arguments_exercise", "run_exercise"]

@@ -384,7 +384,3 @@ def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "sm
         return run_depth_exercise(ex, module, budget, seed, out, progress, named)
     return run_agent_exercise(ex, module, report and report.summary, budget, variant, seed,
                               out, flights, progress, named)
-
-
-__all__ = ["AGENT_BUDGETS", "DEPTH_BUDGETS", "run_exercise", "run_agent_exercise",
-           "run_depth_exercise", "agent_settings", "summary_table", "baseline_folder"]

@@ -428,7 +428,3 @@ def _jsonable(obj):
     if isinstance(obj, (np.integer,)):
         return int(obj)
     return obj
-
-
-__all__ = ["TrainConfig", "Trainer", "build_nets", "speed_scale", "train_depth",
-           "train_depth_command", "check_resume", "other_frames", "MAY_CHANGE_ON_RESUME"]

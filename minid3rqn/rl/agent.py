@@ -196,6 +196,3 @@ class FrameStacker:
     @property
     def obs(self) -> np.ndarray:
         return self.buf
-
-
-__all__ = ["Agent", "AgentConfig", "FrameStacker", "double_q_targets"]

@@ -296,8 +296,3 @@ def run_reproduce(args) -> int:
     except ValueError as e:
         raise UsageError(f"--out: {e}") from None
     return 0
-
-
-__all__ = ["add_arguments_train_agent", "run_train_agent", "add_arguments_distil",
-           "run_distil", "add_arguments_evaluate", "run_evaluate", "add_arguments_fly",
-           "run_fly", "add_arguments_reproduce", "run_reproduce"]

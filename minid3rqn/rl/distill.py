@@ -256,7 +256,3 @@ def distil(cfg: DistilConfig, out_dir, depth_estimator=None, *, progress: bool =
                     load_init=_widen if cfg.init_widen else None,
                     settings={**flat_settings(as_dict(cfg)), **(settings or {})})
     return train(t, out_dir, progress=progress, run=run, act=steps.act, learn=steps.learn)
-
-
-__all__ = ["DISTIL_OPTIONS", "DistilConfig", "Distillation", "LabelledReplay", "LabelledBatch", "distil",
-           "load_teacher", "kl_term", "student"]

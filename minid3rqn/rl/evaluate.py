@@ -381,7 +381,3 @@ def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
               "mirror": bool(cfg.mirror and spec not in BASELINES), "chunk": cfg.chunk,
               "unfinished": warning is not None, "command": command}
     return res, record
-
-
-__all__ = ["EvalConfig", "evaluate_spec", "wilson_interval", "clustered_interval", "world_variance", "by_world", "ByWorld",
-           "EvalResult", "run_flights", "evaluate_policy"]

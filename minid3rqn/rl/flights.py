@@ -296,6 +296,3 @@ class Flights:
         self.batch = SceneBatch([self.worlds[k] for k in self.world_of])
         self.rng.bit_generator.state = json.loads(meta["rng"])
         self.depth_rng.bit_generator.state = json.loads(meta["depth_rng"])
-
-
-__all__ = ["Flights", "FlightsConfig", "StepResult", "depth_only", "encode_depth"]

@@ -113,6 +113,3 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
             "design_effect": None if one_world else round(w.design_effect, 3),
             "depth": depth, "gif": str(gif), "seconds": round(time.time() - t0, 1),
             "flight0_steps": int(survived[0])}
-
-
-__all__ = ["FlyConfig", "fly", "action_names"]

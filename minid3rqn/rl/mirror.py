@@ -81,6 +81,3 @@ def mirror_q(q: np.ndarray, which: np.ndarray, mirror_of: np.ndarray) -> np.ndar
     """Q-values (L, B, A) of the windows ``which`` (bool (B,)) seen in the mirror: the
     value of action a is that of its mirror image ``mirror_of[a]``."""
     return np.where(np.asarray(which, bool)[None, :, None], q[..., mirror_of], q)
-
-
-__all__ = ["mirror_permutation", "MirroredPolicy", "mirror_windows", "mirror_q"]

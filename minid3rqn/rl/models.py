@@ -245,10 +245,3 @@ def recorded_text(row: dict) -> str:
         lo, hi = row["ci95_by_world"]
         text += f", [{lo:.3f}, {hi:.3f}] by world ({row['worlds']} worlds)"
     return text + f", over {row['flights']} flights (seed {row['seed']})"
-
-
-__all__ = ["MODELS", "SHIPPED_QNET", "SHIPPED_QNETS", "BASELINES", "VARIANT_NAMES",
-           "shipped_depth_model", "load_depth_estimator", "depth_estimator_for",
-           "trained_actions", "trained_camera", "unfinished_warning", "load_qnet_policy",
-           "load_policy", "actions_and_camera", "command_for", "save_trained", "ship",
-           "recorded_result", "recorded_text"]

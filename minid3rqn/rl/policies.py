@@ -261,7 +261,3 @@ class EnsemblePolicy(Policy):
             m.act(obs, started)
         self.last_q = np.mean([m.last_q for m in self.members], axis=0)
         return np.argmax(self.last_q, axis=1).astype(np.int64)
-
-
-__all__ = ["Policy", "StraightPolicy", "RandomPolicy", "ReactivePolicy", "OraclePolicy",
-           "QNetPolicy", "EnsemblePolicy"]

@@ -304,7 +304,3 @@ def _run(args) -> int:
         d, lo, hi, c = paired_difference(group, other)
         print(f"difference, paired by world: {d:+.4f} [{lo:+.4f}, {hi:+.4f}] ({c} worlds)")
     return 0
-
-
-__all__ = ["Pooled", "pool_records", "paired_difference", "groups_differ", "chi2_sf",
-           "world_counts", "read_records", "against_conditions"]

@@ -191,6 +191,3 @@ class EpisodeReplay:
                 raise ValueError(f"EpisodeReplay.load_state_dict: {key} has shape "
                                  f"{value.shape}; this buffer expects {own.shape}")
             own[...] = value
-
-
-__all__ = ["EpisodeReplay", "SequenceBatch"]

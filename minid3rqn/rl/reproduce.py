@@ -445,7 +445,3 @@ def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
     (out / "results.md").write_text(text)
     print("\n" + text)
     return results
-
-
-__all__ = ["ReproduceConfig", "reproduce", "reproduce_distilled", "markdown_tables",
-           "PAPER_T5", "PAPER_T6", "FULL", "reproduce_quick"]

@@ -401,7 +401,3 @@ def train(cfg: TrainConfig, out_dir, depth_estimator=None, *, reward_fn=None, de
         raise RunStopped(f"stopped at {run.steps} of {cfg.steps} steps; the checkpoint is in "
                          f"{str(run.out)!r}")
     return run
-
-
-__all__ = ["TrainConfig", "Run", "SMOKE", "train", "start_run", "epsilon_at", "epsilon_greedy",
-           "double_q_update"]
