@@ -41,6 +41,9 @@ def run_check(args) -> int:
     chosen = list(EXERCISES.values()) if args.exercise.lower() == "all" else \
         [_find(args.exercise)]
     given = None if args.file is None else Path(args.file)
+    if given is not None and not given.exists():
+        raise UsageError(f"--file: {args.file!r} does not exist (expected your exercise file, "
+                         f"or a folder of them)")
     if given is not None and not given.is_dir() and len(chosen) > 1:
         raise UsageError(f"--file: 'all' checks a folder of exercise files; got the file "
                          f"{args.file!r}")
