@@ -80,7 +80,7 @@ def profile_vec_step(scenario: str, n: int, seed: int, steps: int = 40) -> None:
     time (cumulative, so nested shares overlap), the ones above 2 %."""
     import cProfile
     import pstats
-    vec = VecDroneEnv(n, scenario, seed=seed, autoreset=False)
+    vec = VecDroneEnv(n, scenario, seed=seed)
     act = np.random.default_rng(seed)
     prof = cProfile.Profile()
     for k in range(steps):
@@ -172,7 +172,7 @@ def main(argv=None):
     rows.append(("DroneEnv.step (distances + render), 1 flight", 1 / sec_single,
                  sec_single))
     n = args.n_envs
-    vec = VecDroneEnv(n, args.scenario, seed=args.seed, autoreset=False)
+    vec = VecDroneEnv(n, args.scenario, seed=args.seed)
     vec.reset()
     sec_vec = time_steps(vec, lambda: act.integers(0, 5, n), max(1, int(3 * k))) / n
     rows.append((f"VecDroneEnv.step, {n} flights (per frame)", 1 / sec_vec, sec_vec))
