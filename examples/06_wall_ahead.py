@@ -13,7 +13,7 @@ fresh `basic` worlds flown by a late-turning pilot, in four steps:
    hardly moves: no.
 3. Is it reading where the wall meets the floor (the cue van Dijk and de Croon, ICCV
    2019, found in KITTI networks)? At altitude h the floor at image row v lies at
-   h / y_n(v); the lowest row sees the floor at about 3.2 m, so a nearer wall covers the
+   h / y_n(v); the lowest row sees the floor at about 3.35 m, so a nearer wall covers the
    whole column and its foot is out of view. Lower the camera to 0.5 m (the network
    still assumes 1 m): the foot of walls down to 1.6 m comes back into view, and for
    those walls the answer moves with the truth again, about twice too far (1 / 0.5,
@@ -28,7 +28,7 @@ fresh `basic` worlds flown by a late-turning pilot, in four steps:
 
 The frames are filmed with the world's default camera, the one every shipped DispNet
 was trained with: its horizon in the middle row. A camera with the horizon raised
-(`Camera(horizon_row=4)`) sees the floor from 1.89 m ahead instead of 3.25 m, and a
+(`Camera(horizon_row=4)`) sees the floor from 1.93 m ahead instead of 3.35 m, and a
 DispNet trained on its frames answers step 1 for walls down to about 2 m.
 
 Writes wall_ahead.png: RGB | predicted | GT depth (metres on one fixed colour scale,

@@ -88,8 +88,8 @@ class ScriptedPilot:
     ``late``: the share of those few-step segments flown as a *late turner*: straight
     ahead, looking only ``late_horizon`` s (a random 1.0-1.6 s, 2-3 m) ahead with a
     ``late_margin`` of 0.7 m, so it swerves only when an obstacle is close; the careful
-    pilot (``late`` = 0) rarely films an obstacle 1-2 m straight ahead (docs/depth.md,
-    "Where the near pixels are").
+    pilot (``late`` = 0) rarely films an obstacle 1-2 m straight ahead (docs/depth.md
+    section 1).
     """
 
     def __init__(self, scene, rng: np.random.Generator, margin: float = 1.0,

@@ -124,7 +124,7 @@ class EvalResult:
     world_set: str = "test"      # "validation": the model-selection range (Flights)
     # By world (module docstring): the interval over the worlds flown, the design effect,
     # and each world's seed, successes and flights (what pools evaluations by world:
-    # ``pool``; with the scenario and its --scene the seed names the world).
+    # ``pool``; with the scenario, a world's seed names the world).
     worlds: int = 0
     ci_low_worlds: float = float("nan")
     ci_high_worlds: float = float("nan")

@@ -22,8 +22,8 @@ DispNets instead of training them, the four Q-nets at the classroom budget, each
 shipped DispNet's depth from the start, flown on the test worlds.
 
 ``--recipe distil`` runs instead our recipe for one D3RQN that flies ``basic`` at 0.95
-on predicted depth (``reproduce_distilled``; docs/beyond.md, "A loss on the greedy
-action"): not the paper's method, the way this project met its target.
+on predicted depth (``reproduce_distilled``; docs/d3rqn.md section 11, docs/beyond.md
+"What helped"): not the paper's method, our addition.
 
 Every model lands with the ``train-agent`` or ``distil`` command that makes it alone.
 """
