@@ -197,30 +197,6 @@ def test_training_world_pool_is_set_and_checked(tmp_path):
             Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=bad))
 
 
-def test_validation_worlds_are_a_third_disjoint_range():
-    """Training, test and validation flights draw their worlds from three disjoint seed
-    ranges; evaluate_policy flies the validation ones when asked, says so in its result,
-    and the same flights twice; both ranges at once, or an unknown set, is refused."""
-    ranges = {}
-    for name, cfg in [("train", FlightsConfig()), ("test", FlightsConfig(test_worlds=True)),
-                      ("validation", FlightsConfig(validation_worlds=True))]:
-        ranges[name] = Flights("basic", 2, seed=3, config=cfg).world_seeds // 1_000_000
-    assert {k: set(v.tolist()) for k, v in ranges.items()} == {
-        "train": {0}, "test": {1}, "validation": {2}}
-    with pytest.raises(ValueError, match="test_worlds and config.validation_worlds"):
-        Flights("basic", 2, config=FlightsConfig(test_worlds=True, validation_worlds=True))
-    kw = dict(n_flights=8, chunk=4, max_steps=20, progress=False)
-    pol = ReactivePolicy(ACTIONS)
-    val = evaluate_policy(pol, "basic", world_set="validation", **kw)
-    assert val.world_set == "validation" and "validation worlds" in val.line()
-    again = evaluate_policy(pol, "basic", world_set="validation", **kw)
-    assert (again.successes, again.mean_steps) == (val.successes, val.mean_steps)
-    test = evaluate_policy(pol, "basic", **kw)
-    assert test.world_set == "test" and test.mean_steps != val.mean_steps
-    with pytest.raises(ValueError, match="world_set must be 'test' or 'validation'; got 'train'"):
-        evaluate_policy(pol, "basic", world_set="train", **kw)
-
-
 def test_evaluation_rejects_bad_counts():
     for kwargs, word in [({"n_flights": 0}, "n_flights"), ({"chunk": 0}, "chunk"),
                          ({"workers": 0}, "workers")]:

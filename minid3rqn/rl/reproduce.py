@@ -39,6 +39,7 @@ from pathlib import Path
 from ..config import at_least, setting, validate
 from .distill import DistilConfig, distil, student
 from .evaluate import EvalConfig, evaluate_spec
+from .flights import TEST_WORLDS
 from .models import MODELS, command_for, load_depth_estimator, save_trained
 from .train import SMOKE, TrainConfig, train
 
@@ -391,7 +392,6 @@ def distilled_table(results: dict) -> str:
 QUICK_TRAIN = dict(steps=40_000, learning_starts=2_000, eps_decay_steps=25_000, hidden=64,
                    replay_capacity=40_000, updates_per_step=1.5, depth="pred", log_every=4_000)
 QUICK_FLIGHTS = 500
-TEST_WORLDS = 271828                 # the test set of world seeds (docs/results.md)
 QUICK_FAMILY = ("d3rqn", "ddrqn", "d3qn", "ddqn")
 QUICK_NOTE = """\
 What this quick run can show: orderings. Are the learned nets far above Straight and
