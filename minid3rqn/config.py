@@ -76,14 +76,6 @@ def positive(v):
     return None if v > 0 else "a number > 0"
 
 
-def one_of(*values):
-    return lambda v: None if v in values else f"one of {', '.join(map(str, values))}"
-
-
-def all_at_least(lo):
-    return lambda v: None if all(x >= lo for x in v) else f"numbers >= {lo}"
-
-
 # -- types ------------------------------------------------------------------------------
 def _hints(cls) -> dict:
     return typing.get_type_hints(cls)

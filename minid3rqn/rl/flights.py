@@ -11,7 +11,7 @@ test flights are in fresh worlds) and starts at a random free pose. One ``step``
     2. observe the new view: GT depth (``depth="gt"``, one ray cast per column; the
        environment, ``world.env.VecDroneEnv``, renders RGB on every step, ~10x slower)
        or the DispNet's depth from the RGB frame (``depth="pred"``; metres through the
-       estimator's own scale, fixed from the flight speed, times ``depth_scale``);
+       estimator's own scale, fixed from the flight speed);
        ``depth_fn(depth, rng)``, if given, corrupts it (exercise 8);
     3. encode it for the Q-net, the paper's depth maps scaled into [0, 1]:
            x = min(d, max_depth) / max_depth.
@@ -43,7 +43,6 @@ class FlightsConfig:
     max_steps: int = 50          # paper: success = 50 steps without collision
     n_worlds: int = 32           # ours: scenes in the pool of one Flights object
     max_depth: float = 10.0      # ours: depth clip (m) for the Q-net input
-    depth_scale: float = 1.0     # extra factor on predicted depth (1: trust the estimator)
     test_worlds: bool = False    # draw worlds from the evaluation seed range
 
 
@@ -151,8 +150,7 @@ class Flights:
             depth = depth_only(sub, poses, self.camera)
         else:
             rgb, _ = render_batch(sub, poses, self.camera)
-            depth = np.asarray(self.estimator.predict(rgb), dtype=np.float32) \
-                * self.cfg.depth_scale
+            depth = np.array(self.estimator.predict(rgb), dtype=np.float32)
         if self.depth_fn is not None:
             depth = self.corrupt(depth)
         return depth, self.encode(depth), rgb

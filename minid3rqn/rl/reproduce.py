@@ -320,8 +320,6 @@ def reproduce_distilled(out: Path, seed: int = 0, students: int = 1,
     ``workers`` > 1 trains the parents (and the students) that many at a time, one
     process per core, and flies the evaluations' chunks likewise. Everything lands in
     ``out/distil`` (results.json, results.md)."""
-    if students < 1:
-        raise ValueError(f"reproduce_distilled: students must be >= 1; got {students}")
     budget = {**FULL, **(budget or {})}
     scenarios = ["basic"] + (list(TRANSFER) if tables in ("6", "both") else [])
     depth_models = _depth_models(out, seed, budget, scenarios, skip_depth)
