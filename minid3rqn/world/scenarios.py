@@ -27,7 +27,7 @@ SCENARIOS = ("basic", "channel", "intersections", "corners")
 # Pillars inside the corridors and streets of the transfer scenarios: one every
 # ``pillar_spacing`` metres along the centre line, ``pillar_offset`` metres to a random
 # side of it, so that flying down the middle hits them and the wide side stays open
-# (>= 2 m free for a 4.2 m corridor). ``pillar_spacing=(0, 0)`` gives empty corridors.
+# (>= 2 m free for a 4.2 m corridor).
 PILLARS = dict(pillar_radius=(0.25, 0.45), pillar_offset=(0.5, 1.0),
                pillar_spacing=(8.0, 12.0))
 
@@ -47,20 +47,15 @@ DEFAULTS = {
 }
 
 
-def make_scene(name: str, seed: int = 0, **overrides) -> Scene:
-    """Generate scenario ``name`` from ``seed``; the same (name, seed, overrides) give the
-    same world. Unknown names or parameters raise ValueError."""
+def make_scene(name: str, seed: int = 0) -> Scene:
+    """Generate scenario ``name`` from ``seed`` (its parameters: ``DEFAULTS[name]``); the
+    same (name, seed) give the same world. An unknown name raises ValueError."""
     if name not in SCENARIOS:
         raise ValueError(f"make_scene: name must be one of {SCENARIOS}; got {name!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise TypeError(f"make_scene: seed must be an int; got {type(seed).__name__}")
-    unknown = set(overrides) - set(DEFAULTS[name])
-    if unknown:
-        raise ValueError(f"make_scene: unknown parameter(s) {sorted(unknown)} for scenario "
-                         f"{name!r}; expected some of {sorted(DEFAULTS[name])}")
-    params = {**DEFAULTS[name], **overrides}
     rng = np.random.default_rng([int(seed), SCENARIOS.index(name)])
-    return _GENERATORS[name](rng, int(seed), **params)
+    return _GENERATORS[name](rng, int(seed), **DEFAULTS[name])
 
 
 def _uniform(rng, lohi):
@@ -199,8 +194,6 @@ def _pillars_along(rng, path, closed, pillar_radius, pillar_offset, pillar_spaci
     falls within ``keep_out_radius`` of a ``keep_out`` point (sharp turns and crossings:
     the drone, which turns on a 4 m radius, needs the whole width there).
     """
-    if pillar_spacing[1] <= 0:
-        return []
     pts = np.concatenate([path, path[:1]]) if closed else path
     seg = np.diff(pts, axis=0)
     length = np.linalg.norm(seg, axis=1)
