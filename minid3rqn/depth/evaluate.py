@@ -220,12 +220,7 @@ def log_error_parts(depth, estimate, clip=Q_NET_RANGE) -> dict:
 
 def pose_errors(posenet, seq: Sequence, max_triplets: int = 500) -> dict:
     """Translation (scale-aligned per snippet, metres) and rotation (degrees) errors of a
-    PoseNet of the (previous, next) sources."""
-    if seq.pose is None:
-        raise ValueError("pose_errors: the sequence has no GT poses")
-    if posenet.n_sources != 2:
-        raise ValueError(f"pose_errors: needs a PoseNet of the previous and next frames; "
-                         f"this one reads {posenet.n_sources} sources")
+    PoseNet of the (previous, next) sources; ``seq`` holds GT poses."""
     idx = seq.triplet_indices()
     if len(idx) > max_triplets:
         idx = idx[np.linspace(0, len(idx) - 1, max_triplets).astype(int)]
