@@ -96,7 +96,7 @@ class LSTM(Module):
 
 
 class Sequential(Module):
-    """Apply layers in order: Sequential(Conv2d(...), ReLU(), ...)."""
+    """Apply layers in order: Sequential(Linear(...), Tanh(), ...)."""
 
     def __init__(self, *layers: Module):
         for i, layer in enumerate(layers):
