@@ -112,11 +112,6 @@ class Flights:
         self.depth_mode, self.estimator = depth, depth_estimator
         self.autoreset = autoreset
         self.camera = Camera() if camera is None else camera
-        seen = getattr(depth_estimator, "horizon_row", None) if depth == "pred" else None
-        if seen is not None and abs(seen - self.camera.cy) > 1e-6:
-            raise ValueError(f"Flights: the depth estimator was trained on frames with the "
-                             f"horizon at row {seen:g}, but these flights' camera has it at "
-                             f"row {self.camera.cy:g} (Camera(horizon_row=...))")
         self.actions = check_action_table(ACTIONS if actions is None else actions,
                                           "Flights: actions")
         self.n_actions = len(self.actions)
