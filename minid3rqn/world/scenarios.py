@@ -172,11 +172,6 @@ def _corridor_scene(rng, seed, name, centre, width, wall_apps, floor, ceil, alti
                    start_free_ahead)
 
 
-def _pillar_appearance(rng):
-    """Pillars of the transfer worlds: saturated, any hue (posts, bollards, trees)."""
-    return random_appearance(rng, sat=(0.5, 0.9), val=(0.5, 0.9), size=(0.15, 0.3))
-
-
 def _sharp_turns(loop, degrees: float = 30.0) -> np.ndarray:
     """Vertices of a closed polyline where its direction turns by more than ``degrees``."""
     d_in = loop - np.roll(loop, 1, axis=0)
@@ -206,7 +201,9 @@ def _pillars_along(rng, path, closed, pillar_radius, pillar_offset, pillar_spaci
         normal = np.array([-direction[1], direction[0]])
         side = 1.0 if rng.random() < 0.5 else -1.0
         xy = pts[k] + (at - arc[k]) * direction + side * _uniform(rng, pillar_offset) * normal
-        radius, app = _uniform(rng, pillar_radius), _pillar_appearance(rng)
+        radius = _uniform(rng, pillar_radius)
+        # saturated, any hue (posts, bollards, trees)
+        app = random_appearance(rng, sat=(0.5, 0.9), val=(0.5, 0.9), size=(0.15, 0.3))
         if not np.any(np.linalg.norm(keep_out - xy, axis=1) < keep_out_radius):
             out.append((xy, radius, app))
         at += _uniform(rng, pillar_spacing)
