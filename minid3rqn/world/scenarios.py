@@ -12,8 +12,7 @@
 All are closed (every camera ray hits a wall) and at most about 40 m across, so flying
 blind fails (a flight is 50 x 0.8 m = 40 m); the gaps, corridor widths and corners
 leave room for a pilot who looks ahead and turns on a 4 m radius (2 m/s at 0.5 rad/s).
-``make_scene(name, seed, **overrides)`` builds one; the keyword overrides replace the
-scenario's parameters (listed in ``DEFAULTS``).
+``make_scene(name, seed)`` builds one from the scenario's parameters (``DEFAULTS``).
 """
 from __future__ import annotations
 
