@@ -73,14 +73,8 @@ class DepthEstimator:
 
     @classmethod
     def load(cls, path, flip: bool = False) -> "DepthEstimator":
-        """A model file written by ``save`` (or a training checkpoint, whose DispNet is
-        read with scale 1: the known-speed term already trains it in metres); ``flip``:
-        see the class doc."""
+        """A model file written by ``save``; ``flip``: see the class doc."""
         arrays, meta = load_npz(path)
-        if meta and "config" in meta and "iteration" in meta:       # a training checkpoint
-            net = DispNet()
-            net.load_state_dict({k[5:]: v for k, v in arrays.items() if k.startswith("disp.")})
-            return cls(net, 1.0, {"iteration": meta["iteration"]}, flip)
         if not meta or "dispnet" not in meta:
             raise ValueError(f"DepthEstimator.load: {str(path)!r} is not a depth model file "
                              f"(no 'dispnet' metadata); write one with train-depth")
