@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io import MODELS
 from .flights import TEST_WORLDS
 from .policies import _trained, trained_actions, trained_camera
 
-MODELS = Path(__file__).resolve().parent.parent / "models"
 SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
 # The shipped Q-nets by name (fly --model NAME): the paper's training (the default), and
 # our distilled student (reproduce --recipe distil; docs/beyond.md).
