@@ -76,14 +76,6 @@ def positive(v):
     return None if v > 0 else "a number > 0"
 
 
-def one_of(*values):
-    return lambda v: None if v in values else f"one of {', '.join(map(str, values))}"
-
-
-def all_at_least(lo):
-    return lambda v: None if all(x >= lo for x in v) else f"numbers >= {lo}"
-
-
 # -- types ------------------------------------------------------------------------------
 def _hints(cls) -> dict:
     return typing.get_type_hints(cls)
@@ -203,14 +195,13 @@ def _is_main(f, name: str, main) -> bool:
     return name in main if main is not None else f.metadata.get("cli", "more") == "main"
 
 
-def add_arguments(parser: argparse.ArgumentParser, cls, defaults=None,
-                  hide: tuple = (), main: tuple | None = None) -> None:
+def add_arguments(parser: argparse.ArgumentParser, cls, hide: tuple = (),
+                  main: tuple | None = None) -> None:
     """Options for every setting of config class ``cls``: main ones as ``--name``, in
-    groups by source; the rest through ``--set NAME=VALUE`` (listed in ``--help``).
-    ``defaults``: a config instance whose values are shown as defaults (default
-    ``cls()``); ``hide``: fields the command sets itself; ``main``: the names of the
-    main options, if not the fields' own choice (``cli``)."""
-    defaults = defaults if defaults is not None else cls()
+    groups by source; the rest through ``--set NAME=VALUE`` (listed in ``--help``, with
+    the defaults of ``cls()``). ``hide``: fields the command sets itself; ``main``: the
+    names of the main options, if not the fields' own choice (``cli``)."""
+    defaults = cls()
     groups, more = {}, []
     order = {s: i for i, s in enumerate(SOURCES)}
     leaves = sorted(_leaves(cls), key=lambda leaf: order[leaf[1].metadata.get("source", "ours")])
@@ -377,10 +368,10 @@ def add_existing_option(parser: argparse.ArgumentParser, grows: str | None = Non
                         "folder is refused")
 
 
-def command_line(cls, cfg, base=None, main: tuple | None = None) -> list[str]:
-    """The options that give ``cfg`` from ``base`` (default ``cls()``): what a model
-    file records, so its command reproduces it."""
-    base = base if base is not None else cls()
+def command_line(cls, cfg, main: tuple | None = None) -> list[str]:
+    """The options that give ``cfg`` from the defaults ``cls()``: what a model file
+    records, so its command reproduces it."""
+    base = cls()
     out = []
     for path, f, hint in _leaves(cls):
         value, default = _get(cfg, path), _get(base, path)

@@ -58,24 +58,23 @@ def depth_to_rgb(depth, near: float = 0.5, far: float = 12.0, log: bool = False)
     return ((ramp[i] * (1 - w) + ramp[i + 1] * w) * 255 + 0.5).astype(np.uint8)
 
 
-def depth_key(width: int, near: float = 0.5, far: float = 12.0, log: bool = False,
+def depth_key(width: int, near: float = 0.5, far: float = 12.0,
               height: int = 24) -> np.ndarray:
-    """The colour key of ``depth_to_rgb(..., near, far, log)``: a bar from ``near`` (left)
-    to ``far`` (right) in its colours, with ticks in metres under it; (height, width, 3)
-    uint8. The ticks fall on a simple step (0.5, 1, 2, 5 ... m; at most six), the ends
-    included."""
+    """The colour key of ``depth_to_rgb(..., near, far)`` (linear in depth): a bar from
+    ``near`` (left) to ``far`` (right) in its colours, with ticks in metres under it;
+    (height, width, 3) uint8. The ticks fall on a simple step (0.5, 1, 2, 5 ... m; at
+    most six), the ends included."""
     x = np.linspace(0.0, 1.0, width)
-    metres = near * (far / near) ** x if log else near + x * (far - near)
+    metres = near + x * (far - near)
     im = Image.new("RGB", (width, height), (255, 255, 255))
-    im.paste(Image.fromarray(depth_to_rgb(np.repeat(metres[None], 8, 0), near, far, log)))
+    im.paste(Image.fromarray(depth_to_rgb(np.repeat(metres[None], 8, 0), near, far)))
     draw, font = ImageDraw.Draw(im), ImageFont.load_default()
     step = next(s for s in (0.5, 1, 2, 5, 10, 20, 50, 100) if (far - near) / s <= 5)
-    inside = np.arange(np.ceil(near / step) * step, far, step) if not log else \
-        np.array([1, 2, 5, 10, 20, 50])
-    gap = step / 2 if not log else 0.0
+    inside = np.arange(np.ceil(near / step) * step, far, step)
+    gap = step / 2
     ticks = [near, *(float(t) for t in inside if near + gap < t < far - gap), far]
     for k, t in enumerate(ticks):
-        u = (np.log(t / near) / np.log(far / near)) if log else (t - near) / (far - near)
+        u = (t - near) / (far - near)
         px = int(round(u * (width - 1)))
         text = f"{t:g}" + (" m" if k == len(ticks) - 1 else "")
         w = draw.textlength(text, font=font)

@@ -466,24 +466,6 @@ def test_collect_stops_when_the_remainder_cannot_make_a_triplet():
     assert np.all(np.bincount(data["flight"]) >= 3)
 
 
-def test_frames_filmed_closer_together(tmp_path):
-    """collect --frame-dt: the drone moves speed x dt between frames, the file says so,
-    and the trainer takes that step for PoseNet's start and the known-speed term."""
-    data = collect("basic", n_frames=12, frames_per_flight=12, seed=5, camera=TINY,
-                   progress=False, frame_dt=0.2)
-    seq = load_sequence(save_sequence(tmp_path / "s.npz", data))
-    assert seq.step == pytest.approx(0.4)
-    moved = np.linalg.norm(np.diff(seq.pose[:, :2], axis=0), axis=1)
-    np.testing.assert_allclose(moved, 0.4, rtol=0.02)        # arcs: chord <= arc length
-    trainer = Trainer(seq, _tiny_cfg(1))
-    target, sources = seq.batch(seq.triplet_indices()[:2])
-    with ag.no_grad():
-        tz = trainer.pose(target, sources).data[..., 2]
-    np.testing.assert_allclose(tz.mean(axis=0), [0.4, -0.4], atol=0.1)
-    with pytest.raises(ValueError, match="frame_dt"):
-        collect("basic", n_frames=12, camera=TINY, progress=False, frame_dt=0.0)
-
-
 def test_late_turning_pilot_shows_more_obstacles_close_ahead():
     """The late turner flies at obstacles and swerves late, so more of its frames show an
     obstacle under 2 m in the middle of the view than the careful pilot's; the careful
@@ -510,8 +492,8 @@ def test_collect_config_checks_its_values():
     """CollectConfig validates once, naming the field; held_out gives the other worlds."""
     from minid3rqn.config import ConfigError
     from minid3rqn.depth.data import CollectConfig, held_out
-    for bad in (dict(frames=2), dict(late_turns=1.5), dict(frame_dt=0.0),
-                dict(scenario="moon"), dict(frames_per_flight=1)):
+    for bad in (dict(frames=2), dict(late_turns=1.5), dict(scenario="moon"),
+                dict(frames_per_flight=1)):
         with pytest.raises(ConfigError, match=next(iter(bad))):
             CollectConfig(**bad)
     test = held_out(CollectConfig(scenario="channel", seed=3, late_turns=0.5), 40)

@@ -14,8 +14,8 @@ from minid3rqn import cli
 from minid3rqn.config import from_args
 from minid3rqn.depth import commands
 from minid3rqn.depth.data import CollectConfig, load_sequence
-from minid3rqn.depth.evaluate import DepthEstimator
 from minid3rqn.depth.train import TrainConfig
+from minid3rqn.io import read_metadata
 
 pytestmark = pytest.mark.depth
 ROOT = Path(__file__).resolve().parent.parent
@@ -56,7 +56,7 @@ def test_collect_train_eval_smoke(tmp_path, capsys):
     assert _run(["train-depth", *SMOKE, "--iterations", "4", "--seed", "3", "--resume",
                  "--dir", str(run)]) == 0
     assert "resuming at iteration 3" in capsys.readouterr().out
-    assert DepthEstimator.load(run / "checkpoint.npz").meta["iteration"] == 4
+    assert read_metadata(run / "checkpoint.npz")["iteration"] == 4
     for extra in ([], ["--flip-tta"], ["--pictures", str(tmp_path / "p.png")]):
         assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
                      str(run / "test.npz"), "--json", str(tmp_path / "m.json"), *extra]) == 0

@@ -215,8 +215,8 @@ def test_shipped_model_predict_matches_the_autograd_path():
                                                ("ddqn", 5)])
 def test_qnet_step_without_graph_equals_forward(variant, channels):
     """Under no_grad qnet_step runs on plain arrays; same Q and state, to the bit."""
-    from minid3rqn.nets.qnet import build_qnet
-    net = build_qnet(variant, rng=0, in_channels=channels)
+    from minid3rqn.nets.qnet import QNet, QNetConfig
+    net = QNet(QNetConfig.for_variant(variant, in_channels=channels), rng=0)
     rng = np.random.default_rng(12)
     for batch in (1, 3):
         obs = rng.random((batch, channels, 32, 104)).astype(np.float32)
@@ -236,8 +236,8 @@ def test_qnet_step_without_graph_equals_forward(variant, channels):
 
 
 def test_qnet_step_without_graph_reads_the_current_weights():
-    from minid3rqn.nets.qnet import build_qnet
-    net = build_qnet("d3rqn", rng=0)
+    from minid3rqn.nets.qnet import QNet, QNetConfig
+    net = QNet(QNetConfig.for_variant("d3rqn"), rng=0)
     obs = np.random.default_rng(13).random((2, 1, 32, 104)).astype(np.float32)
     with ag.no_grad():
         before = qnet_step(net, obs)[0].data.copy()

@@ -5,7 +5,7 @@ import pytest
 from minid3rqn.autograd import Tensor, gradcheck
 from minid3rqn.autograd.optim import Adam, clip_grad_norm
 from minid3rqn.autograd.losses import huber_loss, mse_loss
-from minid3rqn.nets import Linear, Module, ReLU, Sequential, Tanh
+from minid3rqn.nets import Linear, Module, Sequential, Tanh
 
 
 @pytest.mark.optim
@@ -91,7 +91,7 @@ def test_adam_state_roundtrip_resumes_exactly():
 
 class _Net(Module):
     def __init__(self):
-        self.body = Sequential(Linear(4, 8, rng=0), ReLU())
+        self.body = Sequential(Linear(4, 8, rng=0), Tanh())
         self.heads = [Linear(8, 2, rng=1), Linear(8, 1, rng=2)]
 
     def forward(self, x):

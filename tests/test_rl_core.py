@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from minid3rqn import autograd as ag
-from minid3rqn.nets.qnet import QNetConfig, VARIANTS, build_qnet
+from minid3rqn.nets.qnet import QNet, QNetConfig, VARIANTS
 from minid3rqn.rl.agent import Agent, AgentConfig, FrameStacker, double_q_targets
 from minid3rqn.rl.replay import EpisodeReplay
 from minid3rqn.rl.mirror import MirroredPolicy, mirror_permutation, mirror_q, mirror_windows
@@ -13,6 +13,11 @@ from minid3rqn.world import ACTIONS
 pytestmark = pytest.mark.rl
 
 H, W = 32, 104
+
+
+def build_qnet(variant: str = "d3rqn", rng=None, **overrides) -> QNet:
+    """A Q-net of ``variant`` with ``overrides`` of its config (QNetConfig.for_variant)."""
+    return QNet(QNetConfig.for_variant(variant, **overrides), rng=rng)
 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))

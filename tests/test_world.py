@@ -9,7 +9,7 @@ import pytest
 from minid3rqn.world import (ACTIONS, SCENARIOS, Camera, DroneEnv, SceneBatch, VecDroneEnv,
                              depth_to_rgb, inverse_warp_numpy, make_scene, nearest_distance,
                              nearest_distance_batch, oracle_policy, paper_reward,
-                             pose_to_camera_transform, pymunk_nearest_distance, random_policy,
+                             pose_to_camera_transform, random_policy,
                              relative_transform, render, render_batch, sample_start_pose,
                              straight_policy, topdown)
 from minid3rqn.world.distance import nearest_distance_by_kind
@@ -25,6 +25,18 @@ def scenes():
     return {name: make_scene(name, 3) for name in SCENARIOS}
 
 
+def pymunk_nearest_distance(scene, xy) -> np.ndarray:
+    """Reference: ``scene.space.point_query_nearest`` one point at a time, (..., 2) -> (...)."""
+    xy = np.asarray(xy, dtype=np.float64)
+    flat = xy.reshape(-1, 2)
+    reach = float(np.hypot(*(scene.bounds[2:] - scene.bounds[:2]))) + 1e3
+    out = np.empty(len(flat))
+    for k, (x, y) in enumerate(flat):
+        info = scene.space.point_query_nearest((float(x), float(y)), reach, pymunk.ShapeFilter())
+        out[k] = np.inf if info is None else info.distance
+    return out.reshape(xy.shape[:-1])
+
+
 def start_poses(scene, n, seed=0):
     rng = np.random.default_rng(seed)
     return np.stack([sample_start_pose(scene, rng) for _ in range(n)])
@@ -37,7 +49,6 @@ def test_camera_intrinsics():
     assert cam.K.dtype == np.float64 and cam.K.shape == (3, 3)
     assert cam.fx == pytest.approx(52.0)          # (104 / 2) / tan(45 deg)
     assert (cam.cx, cam.cy) == (51.5, 15.5)
-    np.testing.assert_allclose(cam.K @ cam.K_inv, np.eye(3), atol=1e-12)
     # The outer edges of the first and last columns span the horizontal field of view.
     edge = (cam.width - 0.5 - cam.cx) / cam.fx
     assert np.degrees(2 * np.arctan(edge)) == pytest.approx(90.0)
@@ -58,7 +69,6 @@ def test_camera_horizon_row():
     nearer; the middle row is the default camera."""
     cam, raised = Camera(), Camera(horizon_row=4)
     assert raised.cy == 4.0 and raised.K[1, 2] == 4.0 and raised.K[0, 2] == cam.cx
-    np.testing.assert_allclose(raised.K @ raised.K_inv, np.eye(3), atol=1e-12)
     # flying 1 m high, the last row meets the floor 1 m / y_n ahead
     assert 1 / cam.row_rays()[-1] == pytest.approx(52 / 15.5)
     assert 1 / raised.row_rays()[-1] == pytest.approx(52 / 27)
@@ -77,8 +87,6 @@ def test_camera_rejects_bad_horizon_rows(row, error):
 def test_make_scene_errors():
     with pytest.raises(ValueError, match="basic.*channel.*intersections.*corners"):
         make_scene("forest", 0)
-    with pytest.raises(ValueError, match="unknown parameter"):
-        make_scene("basic", 0, n_trees=3)
     with pytest.raises(TypeError, match="seed"):
         make_scene("basic", 1.5)
 
@@ -87,12 +95,11 @@ def test_make_scene_errors():
 def test_transfer_worlds_have_pillars_that_leave_a_way_through(name):
     """The transfer corridors and streets hold pillars (so flying down the middle fails),
     and beside each there is room to pass: some point 1 m from its surface keeps >= 1 m
-    from everything. ``pillar_spacing=(0, 0)`` gives the empty corridors."""
+    from everything."""
     ring = np.stack([np.cos(np.linspace(0, 2 * np.pi, 72)), np.sin(np.linspace(0, 2 * np.pi, 72))], 1)
     for seed in range(5):
         scene = make_scene(name, seed)
         assert len(scene.circle_radii) >= 2
-        assert len(make_scene(name, seed, pillar_spacing=(0.0, 0.0)).circle_radii) == 0
         for c, r in zip(scene.circle_centres, scene.circle_radii):
             clearance = nearest_distance(scene, c + (r + 1.0) * ring)
             assert clearance.max() >= 1.0, (name, seed, c, r)
@@ -334,7 +341,7 @@ def test_env_determinism_and_spaces():
         rng = np.random.default_rng(0)
         trace = [info["pose"]]
         for _ in range(5):
-            obs, r, term, trunc, info = env.step(env.action_space.sample(rng))
+            obs, r, term, trunc, info = env.step(int(rng.integers(env.action_space.n)))
             trace.append(info["pose"])
             if term:
                 break

@@ -87,7 +87,7 @@ def run_collect(args) -> int:
 
 # -- train-depth ---------------------------------------------------------------------------
 # The frames of a train-depth run come from collect's settings; their seed is the run's.
-TRAIN_DATA_HIDDEN = ("seed", "frame_dt", "frames_per_flight")
+TRAIN_DATA_HIDDEN = ("seed", "frames_per_flight")
 
 
 def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:

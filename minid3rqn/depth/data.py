@@ -14,7 +14,7 @@ A sequence file (``.npz``, written atomically) holds
                                    are consecutive, in time order)
     K       (3, 3) float64         the camera intrinsics
 
-plus JSON metadata (the ``CollectConfig``, speed, dt, camera, command).
+plus JSON metadata (the ``CollectConfig``, camera, command).
 
 Training samples are triplets (previous, target, next) of consecutive frames of ONE
 flight; ``triplet_indices`` lists the targets, ``Sequence.batch`` refuses frames that
@@ -53,8 +53,6 @@ class CollectConfig:
     late_turns: float = setting(0.0, "share of the pilot's segments flown straight at "
                                      "obstacles, swerving late (0: the careful pilot)",
                                 source="ours", check=between(0.0, 1.0))
-    frame_dt: float = setting(FRAME_DT, "seconds between frames", source="paper", cli="more",
-                              check=lambda v: None if 0 < v <= 2 else "seconds in (0, 2]")
     frames_per_flight: int = setting(50, "the longest flight, in frames", source="ours",
                                      check=at_least(3))
 
@@ -125,36 +123,32 @@ class ScriptedPilot:
 
 
 # -- collection ------------------------------------------------------------------------
-def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0,
-        frame_dt: float = FRAME_DT) -> np.ndarray:
+def fly(scene, n_frames: int, rng: np.random.Generator, late: float = 0.0) -> np.ndarray:
     """One scripted flight of up to ``n_frames`` camera poses (fewer if it comes too
-    close); ``late``: the pilot's share of late-turn segments (``ScriptedPilot``);
-    ``frame_dt``: seconds between frames (the pilot decides at every frame)."""
+    close), a frame every 0.4 s (the pilot decides at every frame); ``late``: the pilot's
+    share of late-turn segments (``ScriptedPilot``)."""
     pilot = ScriptedPilot(scene, rng, late=late)
     poses = [sample_start_pose(scene, rng)]
     while len(poses) < n_frames:
         w = pilot(poses[-1])
         # Check clearance along the step, every 0.1 m.
-        path = _arc_points(poses[-1], w, frame_dt, 8)
+        path = _arc_points(poses[-1], w, FRAME_DT, 8)
         if nearest_distance(scene, path).min() < SAFE:
             break
-        poses.append(integrate_arc(poses[-1], SPEED, w, frame_dt))
+        poses.append(integrate_arc(poses[-1], SPEED, w, FRAME_DT))
     return np.stack(poses)
 
 
 def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: int = 50,
-            seed: int = 0, camera=None, progress: bool = True, late: float = 0.0,
-            frame_dt: float = FRAME_DT) -> dict:
+            seed: int = 0, camera=None, progress: bool = True, late: float = 0.0) -> dict:
     """Fly scripted flights in fresh scenes of ``scenario`` until ``n_frames`` frames.
 
     Flight f flies in ``make_scene(scenario, seed=seed * 100003 + f)``; flights shorter
     than 3 frames (no triplet) are dropped, so when the last 1-2 frames cannot make a
     flight of their own the sequence ends up to 2 frames short of ``n_frames``. Returns
     the arrays of a sequence file. ``late``: the pilot's share of late-turn segments
-    (``ScriptedPilot``). ``frame_dt``: seconds between frames (paper: 0.4 s).
+    (``ScriptedPilot``).
     """
-    if not 0.0 < frame_dt <= 2.0:
-        raise ValueError(f"collect: frame_dt must be in (0, 2] s; got {frame_dt}")
     if n_frames < 3:
         raise ValueError(f"collect: n_frames must be >= 3 (one triplet); got {n_frames}")
     if frames_per_flight < 3:
@@ -169,7 +163,7 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         bar = tqdm(total=n_frames, desc=f"collect {scenario}", unit="frame")
     while n_frames - total >= 3:        # a last flight of 1-2 frames would hold no triplet
         scene = make_scene(scenario, seed=seed * 100003 + f)
-        poses = fly(scene, min(frames_per_flight, n_frames - total), rng, late, frame_dt)
+        poses = fly(scene, min(frames_per_flight, n_frames - total), rng, late)
         f += 1
         if len(poses) < 3:
             continue
@@ -186,15 +180,12 @@ def collect(scenario: str = "basic", n_frames: int = 5000, frames_per_flight: in
         bar.close()
     return {"rgb": np.concatenate(rgb), "depth": np.concatenate(depth),
             "pose": np.concatenate(pose), "flight": np.concatenate(flight),
-            "K": camera.K, "camera": (camera.height, camera.width, camera.hfov_deg, camera.cy),
-            "dt": frame_dt}
+            "K": camera.K, "camera": (camera.height, camera.width, camera.hfov_deg, camera.cy)}
 
 
 def save_sequence(path, data: dict, metadata: dict | None = None) -> Path:
     arrays = {k: data[k] for k in ("rgb", "depth", "pose", "flight", "K")}
     meta = dict(metadata or {})
-    meta.setdefault("speed", SPEED)
-    meta.setdefault("dt", data.get("dt", FRAME_DT))
     meta["camera"] = list(data.get("camera", ()))
     return save_npz(path, arrays, meta)
 
@@ -242,13 +233,6 @@ class Sequence:
     def shape(self) -> tuple[int, int]:
         return self.rgb.shape[1], self.rgb.shape[2]
 
-    @property
-    def step(self) -> float:
-        """Metres flown between consecutive frames: speed x dt from the file's metadata
-        (2 m/s x 0.4 s = 0.8 m, the paper's, when it says nothing)."""
-        meta = self.meta or {}
-        return float(meta.get("speed", SPEED)) * float(meta.get("dt", FRAME_DT))
-
     def triplet_indices(self) -> np.ndarray:
         return triplet_indices(self.flight)
 
@@ -286,7 +270,7 @@ def collect_sequence(cfg: CollectConfig, path, progress: bool = True) -> Sequenc
     """Collect the frames of ``cfg``, save them to ``path`` with the ``collect`` command
     that makes them, and return them as read back from the file."""
     data = collect(cfg.scenario, cfg.frames, cfg.frames_per_flight, cfg.seed,
-                   progress=progress, late=cfg.late_turns, frame_dt=cfg.frame_dt)
+                   progress=progress, late=cfg.late_turns)
     command = " ".join(["python -m minid3rqn collect", *command_line(CollectConfig, cfg),
                         "--out", str(path)])
     save_sequence(path, data, {**as_dict(cfg), "command": command})

@@ -73,14 +73,8 @@ class DepthEstimator:
 
     @classmethod
     def load(cls, path, flip: bool = False) -> "DepthEstimator":
-        """A model file written by ``save`` (or a training checkpoint, whose DispNet is
-        read with scale 1: the known-speed term already trains it in metres); ``flip``:
-        see the class doc."""
+        """A model file written by ``save``; ``flip``: see the class doc."""
         arrays, meta = load_npz(path)
-        if meta and "config" in meta and "iteration" in meta:       # a training checkpoint
-            net = DispNet()
-            net.load_state_dict({k[5:]: v for k, v in arrays.items() if k.startswith("disp.")})
-            return cls(net, 1.0, {"iteration": meta["iteration"]}, flip)
         if not meta or "dispnet" not in meta:
             raise ValueError(f"DepthEstimator.load: {str(path)!r} is not a depth model file "
                              f"(no 'dispnet' metadata); write one with train-depth")
@@ -220,12 +214,7 @@ def log_error_parts(depth, estimate, clip=Q_NET_RANGE) -> dict:
 
 def pose_errors(posenet, seq: Sequence, max_triplets: int = 500) -> dict:
     """Translation (scale-aligned per snippet, metres) and rotation (degrees) errors of a
-    PoseNet of the (previous, next) sources."""
-    if seq.pose is None:
-        raise ValueError("pose_errors: the sequence has no GT poses")
-    if posenet.n_sources != 2:
-        raise ValueError(f"pose_errors: needs a PoseNet of the previous and next frames; "
-                         f"this one reads {posenet.n_sources} sources")
+    PoseNet of the (previous, next) sources; ``seq`` holds GT poses."""
     idx = seq.triplet_indices()
     if len(idx) > max_triplets:
         idx = idx[np.linspace(0, len(idx) - 1, max_triplets).astype(int)]

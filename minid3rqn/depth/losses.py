@@ -227,7 +227,7 @@ def speed_loss(poses, step: float = STEP) -> Tensor:
 
 # -- the loss we train with -----------------------------------------------------------------
 def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | None = None,
-                        photometric_error=None, step: float = STEP):
+                        photometric_error=None):
     """L = L_photo + lambda L_smooth + mu L_speed (module docstring) for one batch.
 
     Args:
@@ -238,7 +238,6 @@ def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | N
         K: (3, 3) intrinsics of the (H, W) images.
         photometric_error: (pred, target) -> (M, 1, h, w) Tensor, the per-pixel error
             (default: pe with ``config.ssim_weight``; ``l1_error`` is the paper's).
-        step: metres flown between the target and each source (known from the speed).
 
     Returns:
         (loss, info): a scalar Tensor and a dict of floats (photo, smooth, mask, speed).
@@ -275,7 +274,7 @@ def view_synthesis_loss(target, sources, disps, poses, K, config: LossConfig | N
         masks.append(mask_i.ravel())
         smooths.append(smoothness_loss(disp, downsample_image(target, factor))
                        * (1.0 / factor))
-    photo, smooth, speed = _mean(photos), _mean(smooths), speed_loss(poses, step)
+    photo, smooth, speed = _mean(photos), _mean(smooths), speed_loss(poses)
     loss = photo + smooth * SMOOTH_WEIGHT + speed * SPEED_WEIGHT
     info = {"photo": float(photo.data), "smooth": float(smooth.data),
             "mask": float(np.concatenate(masks).mean()), "speed": float(speed.data)}

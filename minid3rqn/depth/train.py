@@ -92,13 +92,13 @@ class TrainConfig:
         validate(self)
 
 
-def build_nets(cfg: TrainConfig, step: float = STEP) -> tuple[DispNet, PoseNet]:
+def build_nets(cfg: TrainConfig) -> tuple[DispNet, PoseNet]:
     """A fresh DispNet and PoseNet (seed ``cfg.seed``); PoseNet starts at the known
-    forward motion ``step`` per frame: T_{t->t-1} at tz = +step, T_{t->t+1} at -step."""
+    forward motion STEP (0.8 m) per frame: T_{t->t-1} at tz = +STEP, T_{t->t+1} at -STEP."""
     rng = np.random.default_rng(cfg.seed)
     disp = DispNet(init_disp=cfg.init_disp, rng=rng)
     pose = PoseNet(n_sources=len(OFFSETS), pose_scale=POSE_SCALE, head_gain=POSE_HEAD_GAIN,
-                   rng=rng, init_tz=tuple(-o * step for o in OFFSETS))
+                   rng=rng, init_tz=tuple(-o * STEP for o in OFFSETS))
     return disp, pose
 
 
@@ -120,7 +120,7 @@ class Trainer:
         if len(self.targets) == 0:
             raise ValueError("Trainer: the sequence has no triplet (three consecutive "
                              "frames of one flight); collect longer flights")
-        self.disp, self.pose = build_nets(cfg, sequence.step)
+        self.disp, self.pose = build_nets(cfg)
         h, w = sequence.shape
         if h % 2 ** (self.disp.n_scales - 1) or w % 2 ** (self.disp.n_scales - 1):
             raise ValueError(f"Trainer: image size {h}x{w} must be divisible by "
@@ -186,7 +186,7 @@ class Trainer:
                     f"train-depth: the predicted {name} holds NaN/inf at iteration "
                     f"{self.iteration + 1}, so the loss would be NaN; try a smaller lr")
         loss, info = view_synthesis_loss(target, sources, disps, poses, self.seq.K,
-                                         self.cfg.loss, self.photometric_error, self.seq.step)
+                                         self.cfg.loss, self.photometric_error)
         value = float(loss.data)
         if not math.isfinite(value):
             raise FloatingPointError(
@@ -310,8 +310,8 @@ def check_resume(meta: dict, settings: dict, path) -> None:
 
 def speed_scale(posenet: PoseNet, seq: Sequence, max_triplets: int = 400) -> float:
     """scale = step / mean |t_pred| over (up to ``max_triplets``) triplets and both their
-    sources, with step = speed x dt the distance flown between frames (known from the
-    drone's speed, not from ground truth). Multiplying the network's depth (1 / disp)
+    sources, with step = STEP = speed x dt the distance flown between frames (known from
+    the drone's speed, not from ground truth). Multiplying the network's depth (1 / disp)
     by this scale gives metres."""
     idx = seq.triplet_indices()
     if len(idx) > max_triplets:
@@ -325,7 +325,7 @@ def speed_scale(posenet: PoseNet, seq: Sequence, max_triplets: int = 400) -> flo
     mean = float(np.mean(np.concatenate(norms)))
     if not mean > 0:
         raise FloatingPointError("speed_scale: PoseNet predicts no motion at all")
-    return seq.step / mean
+    return STEP / mean
 
 
 # -- a whole run ------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Layers: Linear, Conv2d, LSTM, Sequential and two parameter-free activations.
+"""Layers: Linear, Conv2d, LSTM, Sequential and a parameter-free activation (Tanh).
 
 Every layer takes ``rng`` (a seed or ``np.random.Generator``) for its initial weights,
 so the same seed builds the same network.
@@ -96,7 +96,7 @@ class LSTM(Module):
 
 
 class Sequential(Module):
-    """Apply layers in order: Sequential(Conv2d(...), ReLU(), ...)."""
+    """Apply layers in order: Sequential(Linear(...), Tanh(), ...)."""
 
     def __init__(self, *layers: Module):
         for i, layer in enumerate(layers):
@@ -109,17 +109,6 @@ class Sequential(Module):
         for layer in self.layers:
             x = layer(x)
         return x
-
-    def __getitem__(self, i):
-        return self.layers[i]
-
-    def __len__(self):
-        return len(self.layers)
-
-
-class ReLU(Module):
-    def forward(self, x):
-        return ag.relu(x)
 
 
 class Tanh(Module):

@@ -216,11 +216,6 @@ class QNet(Module):
         return q[0], state
 
 
-def build_qnet(variant: str = "d3rqn", rng=None, **overrides) -> QNet:
-    """``build_qnet("d3rqn")``, ``build_qnet("ddqn", in_channels=5)``, ..."""
-    return QNet(QNetConfig.for_variant(variant, **overrides), rng=rng)
-
-
 def variant_name(config: QNetConfig) -> str:
     for name, flags in VARIANTS.items():
         if flags == dict(dueling=config.dueling, recurrent=config.recurrent):

@@ -57,8 +57,6 @@ class AgentConfig:
                                       "does not give its loss)", check=positive)
     grad_clip: float = setting(10.0, "clip the gradient's global norm to this",
                                check=positive)
-    burn_in: int = setting(0, "steps at a window's start left out of the loss",
-                           check=at_least(0))
     reward_scale: float = setting(0.1, "rewards x this (the same policy; Q-values ~ 10, "
                                        "not ~ 100)", check=positive)
 
@@ -133,9 +131,7 @@ class Agent:
         y = np.asarray(y, dtype=np.float32)
         t_idx, b_idx = np.meshgrid(np.arange(L), np.arange(B), indexing="ij")
         q_sa = q_all[t_idx, b_idx, batch.actions]                # (L, B)
-        mask = batch.mask.copy()
-        if cfg.burn_in:
-            mask[:cfg.burn_in] = 0.0
+        mask = batch.mask
         per = huber_loss(q_sa, y, delta=cfg.huber_delta, reduction="none")
         loss = ag.sum(per * mask) * (1.0 / max(1.0, float(mask.sum())))
         info = {"q_mean": float((q_sa.data * mask).sum() / max(1.0, mask.sum())),

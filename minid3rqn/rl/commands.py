@@ -157,9 +157,6 @@ def run_distil(args) -> int:
         if args.smoke else None
     cfg = from_args(DistilConfig, args, base=base, main=DISTIL_OPTIONS)
     t = cfg.train
-    if cfg.init_widen and not t.init_model:
-        raise UsageError("--set init_widen=true: grows the --init-model's LSTM; give "
-                         "--init-model")
     cam, actions = Camera(hfov_deg=t.hfov_deg), ACTIONS if t.actions is None else t.actions
     try:                                 # a bad teacher: say so before any training
         teacher = load_teacher(cfg.teachers, (cam.height, cam.width), len(actions))

@@ -47,8 +47,8 @@ import numpy as np
 from .. import autograd as ag
 from ..autograd.losses import huber_loss
 from ..autograd.optim import clip_grad_norm
-from ..config import (as_dict, at_least, between, flat_settings, positive, setting,
-                      validate)
+from ..config import (ConfigError, as_dict, at_least, between, flat_settings, positive,
+                      setting, validate)
 from .agent import AgentConfig
 from .mirror import mirror_permutation, mirror_q, mirror_windows
 from .replay import EpisodeReplay, SequenceBatch
@@ -87,6 +87,9 @@ class DistilConfig:
 
     def __post_init__(self):
         validate(self)
+        if self.init_widen and not self.train.init_model:
+            raise ConfigError("init_widen", True, "false without --init-model (it grows "
+                              "the --init-model's LSTM)")
 
 
 @dataclass
@@ -240,8 +243,6 @@ def distil(cfg: DistilConfig, out_dir, depth_estimator=None, *, progress: bool =
     if not cfg.teachers:
         raise ValueError("distil: cfg.teachers is empty; give the teacher's Q-net file(s), "
                          "'A.npz' or 'A.npz+B.npz+...'")
-    if cfg.init_widen and not t.init_model:
-        raise ValueError("distil: init_widen grows the init_model's LSTM; set init_model")
     actions = np.asarray(ACTIONS if t.actions is None else t.actions, dtype=np.float64)
     cam = Camera(hfov_deg=t.hfov_deg)
     teacher = load_teacher(cfg.teachers, (cam.height, cam.width), len(actions))

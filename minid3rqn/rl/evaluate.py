@@ -121,7 +121,6 @@ class EvalResult:
     mean_steps: float
     seconds: float
     seed: int
-    world_set: str = "test"      # "validation": the model-selection range (Flights)
     # By world (module docstring): the interval over the worlds flown, the design effect,
     # and each world's seed, successes and flights (what pools evaluations by world:
     # ``pool``; with the scenario, a world's seed names the world).
@@ -134,14 +133,13 @@ class EvalResult:
     world_flights: list = field(default_factory=list)
 
     def line(self) -> str:
-        where = "" if self.world_set == "test" else ", validation worlds"
         by_world = ""
         if self.worlds >= 2:
             by_world = (f"; by world [{self.ci_low_worlds:.3f}, {self.ci_high_worlds:.3f}], "
                         f"{self.worlds} worlds, deff {self.design_effect:.2f}")
         return (f"{self.policy:<10} {self.scenario:<13} {self.rate:.3f} "
                 f"[{self.ci_low:.3f}, {self.ci_high:.3f}]  ({self.successes}/{self.flights}, "
-                f"mean steps {self.mean_steps:.1f}, {self.seconds:.0f} s{where}{by_world})")
+                f"mean steps {self.mean_steps:.1f}, {self.seconds:.0f} s{by_world})")
 
     def to_dict(self) -> dict:
         """The fields as a dict for JSON: a NaN (no interval by world from fewer than two
@@ -244,8 +242,7 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
                     depth: str = "gt", depth_estimator=None,
                     flights_config: FlightsConfig | None = None,
                     progress: bool = True, workers: int = 1,
-                    flights_factory=None, world_set: str = "test", actions=None,
-                    camera=None) -> EvalResult:
+                    flights_factory=None, actions=None, camera=None) -> EvalResult:
     """Success rate of ``policy`` over ``n_flights`` fresh flights (greedy, batched).
 
     The flights are flown ``chunk`` at a time, each chunk from its own seed
@@ -255,9 +252,8 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     the result is the same as with one. ``flights_factory`` (default ``Flights``) makes
     each chunk's flights from ``Flights``'s arguments: a subclass that changes what the
     policy sees (``examples/07_which_depth_errors_matter.py``) is flown the same way.
-    ``world_set``: "test" (the evaluation seed range, every reported rate) or "validation"
-    (a third, disjoint range, for choosing between models without touching the test
-    worlds). ``actions``, ``camera``: the flights' (default: those the policy's Q-nets
+    The flights' worlds come from the evaluation seed range (``FlightsConfig.test_worlds``).
+    ``actions``, ``camera``: the flights' (default: those the policy's Q-nets
     were trained with, recorded in their files; else the world's).
     """
     if n_flights < 1:
@@ -266,16 +262,12 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
         raise ValueError(f"evaluate_policy: chunk must be >= 1; got {chunk}")
     if workers < 1:
         raise ValueError(f"evaluate_policy: workers must be >= 1; got {workers}")
-    if world_set not in ("test", "validation"):
-        raise ValueError(f"evaluate_policy: world_set must be 'test' or 'validation'; got "
-                         f"{world_set!r}")
     if actions is None and camera is None:
         from .models import actions_and_camera
         actions, camera = actions_and_camera(policy)
     cfg = flights_config or FlightsConfig()
     cfg = FlightsConfig(**{**asdict(cfg), "max_steps": max_steps,
-                           "test_worlds": world_set == "test",
-                           "validation_worlds": world_set == "validation",
+                           "test_worlds": True,
                            "n_worlds": min(cfg.n_worlds, chunk, n_flights)})
     tasks = _chunk_seeds(seed, n_flights, chunk)
     workers = min(workers, len(tasks))
@@ -313,7 +305,7 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     lo, hi = wilson_interval(k, n_flights)
     w = by_world(success, np.concatenate(world))
     return EvalResult(policy.name, scenario, depth, n_flights, k, k / n_flights, lo, hi,
-                      float(survived.mean()), time.time() - t0, seed, world_set,
+                      float(survived.mean()), time.time() - t0, seed,
                       len(w.flights), w.ci_low, w.ci_high, w.design_effect, w.seeds.tolist(),
                       w.successes.tolist(), w.flights.tolist())
 
@@ -337,8 +329,6 @@ class EvalConfig:
     workers: int = setting(1, "processes flying the chunks, one per core (the same "
                               "result; run with OMP_NUM_THREADS=1)", source="run",
                            check=at_least(1))
-    validation: bool = setting(False, "fly the validation worlds instead of the test worlds "
-                                      "(for choosing between models)", source="run")
     mirror: bool = setting(False, "each Q-net also flies the mirrored view; greedy on the "
                                   "mean Q-values (docs/d3rqn.md section 10)", cli="main")
     flip_tta: bool = setting(False, "the DispNet's disparity averaged with its disparity on "
@@ -367,8 +357,7 @@ def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
     if warning:
         print(warning, file=sys.stderr, flush=True)
     res = evaluate_policy(pol, cfg.scenario, cfg.flights, cfg.seed, cfg.steps, cfg.chunk,
-                          cfg.depth, depth_estimator, progress=progress, workers=cfg.workers,
-                          world_set="validation" if cfg.validation else "test")
+                          cfg.depth, depth_estimator, progress=progress, workers=cfg.workers)
     flip = depth_estimator is not None and depth_estimator.flip
     how = [f"{cfg.depth} depth"] + (["flip"] if flip else [])
     if spec not in BASELINES:

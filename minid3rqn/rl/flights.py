@@ -11,7 +11,7 @@ test flights are in fresh worlds) and starts at a random free pose. One ``step``
     2. observe the new view: GT depth (``depth="gt"``, one ray cast per column; the
        environment, ``world.env.VecDroneEnv``, renders RGB on every step, ~10x slower)
        or the DispNet's depth from the RGB frame (``depth="pred"``; metres through the
-       estimator's own scale, fixed from the flight speed, times ``depth_scale``);
+       estimator's own scale, fixed from the flight speed);
        ``depth_fn(depth, rng)``, if given, corrupts it (exercise 8);
     3. encode it for the Q-net, the paper's depth maps scaled into [0, 1]:
            x = min(d, max_depth) / max_depth.
@@ -35,7 +35,7 @@ from ..world.stepper import check_reward_fn, step_drones
 
 TRAIN_SEEDS = 0                 # training worlds: seeds in [0, 1e6)
 TEST_SEEDS = 1_000_000          # evaluation worlds: seeds in [1e6, 2e6)
-VALIDATION_SEEDS = 2_000_000    # validation worlds (choosing between models): [2e6, 3e6)
+TEST_WORLDS = 271828            # the evaluation seed of the test worlds (docs/results.md)
 
 
 @dataclass
@@ -43,10 +43,7 @@ class FlightsConfig:
     max_steps: int = 50          # paper: success = 50 steps without collision
     n_worlds: int = 32           # ours: scenes in the pool of one Flights object
     max_depth: float = 10.0      # ours: depth clip (m) for the Q-net input
-    depth_scale: float = 1.0     # extra factor on predicted depth (1: trust the estimator)
     test_worlds: bool = False    # draw worlds from the evaluation seed range
-    validation_worlds: bool = False  # draw them from the validation range (model selection:
-                                     # a choice made there never sees a test world)
 
 
 def encode_depth(depth: np.ndarray, max_depth: float = 10.0) -> np.ndarray:
@@ -112,17 +109,9 @@ class Flights:
                 or n_worlds < 1:
             raise ValueError(f"Flights: config.n_worlds (the pool of scenes) must be an int "
                              f">= 1; got {n_worlds!r}")
-        if self.cfg.test_worlds and self.cfg.validation_worlds:
-            raise ValueError("Flights: config.test_worlds and config.validation_worlds are "
-                             "both set; the two seed ranges are disjoint, pick one")
         self.depth_mode, self.estimator = depth, depth_estimator
         self.autoreset = autoreset
         self.camera = Camera() if camera is None else camera
-        seen = getattr(depth_estimator, "horizon_row", None) if depth == "pred" else None
-        if seen is not None and abs(seen - self.camera.cy) > 1e-6:
-            raise ValueError(f"Flights: the depth estimator was trained on frames with the "
-                             f"horizon at row {seen:g}, but these flights' camera has it at "
-                             f"row {self.camera.cy:g} (Camera(horizon_row=...))")
         self.actions = check_action_table(ACTIONS if actions is None else actions,
                                           "Flights: actions")
         self.n_actions = len(self.actions)
@@ -134,8 +123,7 @@ class Flights:
         self.depth_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         self.frame_shape = (self.camera.height, self.camera.width)
         self.rng = np.random.default_rng(seed)
-        base = (TEST_SEEDS if self.cfg.test_worlds else
-                VALIDATION_SEEDS if self.cfg.validation_worlds else TRAIN_SEEDS)
+        base = TEST_SEEDS if self.cfg.test_worlds else TRAIN_SEEDS
         self.world_seeds = base + self.rng.choice(1_000_000, size=n_worlds, replace=False)
         self.worlds = [make_scene(scenario, int(s)) for s in self.world_seeds]
         self.world_of = np.zeros(self.n, dtype=np.int64)
@@ -157,8 +145,7 @@ class Flights:
             depth = depth_only(sub, poses, self.camera)
         else:
             rgb, _ = render_batch(sub, poses, self.camera)
-            depth = np.asarray(self.estimator.predict(rgb), dtype=np.float32) \
-                * self.cfg.depth_scale
+            depth = np.array(self.estimator.predict(rgb), dtype=np.float32)
         if self.depth_fn is not None:
             depth = self.corrupt(depth)
         return depth, self.encode(depth), rgb

@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io import MODELS
+from .flights import TEST_WORLDS
 from .policies import _trained, trained_actions, trained_camera
 
-MODELS = Path(__file__).resolve().parent.parent / "models"
 SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
 # The shipped Q-nets by name (fly --model NAME): the paper's training (the default), and
 # our distilled student (reproduce --recipe distil; docs/beyond.md).
@@ -214,7 +215,8 @@ def _evaluations(model: Path, records) -> list[dict]:
                      "ci95": [r["ci_low"], r["ci_high"]], "command": r["command"],
                      "worlds": r["worlds"], "ci95_by_world": [r["ci_low_worlds"],
                                                               r["ci_high_worlds"]],
-                     "design_effect": r["design_effect"], "worlds_set": r["world_set"],
+                     "design_effect": r["design_effect"], "worlds_set":
+                         "test" if r["seed"] == TEST_WORLDS else "validation",
                      "mirror": r["mirror"], "flip_tta": r["depth_flip"]})
     if not rows:
         raise ValueError(f"ship: no recorded evaluation of {str(model)!r}; give the records "

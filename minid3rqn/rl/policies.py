@@ -82,8 +82,8 @@ class ReactivePolicy(Policy):
     """Steer toward the deepest direction of the depth map (no learning, no memory).
 
     Per image column, the obstacle distance is the median depth of the ``rows`` rows
-    around the horizon (the optical axis is level, so floor and ceiling are far from
-    those rows; ``horizon_row``: the camera's, None for the middle row).
+    around the horizon, the middle row (the optical axis is level, so floor and ceiling
+    are far from those rows).
     The profile is smoothed over ``smooth`` columns (a corridor as wide as the drone
     must be free, not one pixel). If the centre of the image is free beyond
     ``clear_ahead`` metres the drone flies straight; otherwise it turns toward the
@@ -99,10 +99,8 @@ class ReactivePolicy(Policy):
     name = "Reactive"
 
     def __init__(self, actions: np.ndarray, hfov_deg: float = 90.0, rows: int = 4,
-                 smooth: int = 91, clear_ahead: float = 10.0, turn_time: float = 0.6,
-                 horizon_row: float | None = None):
+                 smooth: int = 91, clear_ahead: float = 10.0, turn_time: float = 0.6):
         self.actions = np.asarray(actions, dtype=np.float64)
-        self.horizon_row = horizon_row
         self.hfov = math.radians(hfov_deg)
         self.rows, self.smooth = rows, smooth
         self.clear_ahead, self.turn_time = clear_ahead, turn_time
@@ -110,7 +108,7 @@ class ReactivePolicy(Policy):
     def profile(self, depth: np.ndarray) -> np.ndarray:
         """(n, H, W) depth -> (n, W) smoothed per-column obstacle distance."""
         n, H, W = depth.shape
-        mid = H // 2 if self.horizon_row is None else int(math.floor(self.horizon_row + 0.5))
+        mid = H // 2
         band = depth[:, max(0, mid - self.rows // 2): mid + (self.rows + 1) // 2]
         col = np.median(band, axis=1)
         k = max(1, min(self.smooth, W))

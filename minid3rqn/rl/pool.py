@@ -30,18 +30,6 @@ cannot:
 
 ``--against`` keeps the ``--where`` conditions it does not name: above, the reactive rule
 in intersections.
-
-3. **Do these groups differ, or is it the luck of the worlds?** (``--split KEY``, e.g.
-   ``--split seed``: one net on three sets of test worlds.) Each group's rate p_g with
-   its variance v_g (by flight p (1 - p) / n; by world var_w of ``clustered_interval``,
-   never below the by-flight one), and the test of equal rates
-
-       p_bar = sum_g (p_g / v_g) / sum_g (1 / v_g),   X^2 = sum_g (p_g - p_bar)^2 / v_g
-
-   against the chi-square distribution with G - 1 degrees of freedom (``chi2_sf``). The
-   groups must fly different worlds (a stray world drawn by two evaluation seeds is
-   let pass); groups that share more than 5% of their worlds are a paired question
-   (``--against``).
 """
 from __future__ import annotations
 
@@ -55,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import UsageError
-from .evaluate import clustered_interval, wilson_interval, world_variance
+from .evaluate import clustered_interval, wilson_interval
 
 
 @dataclass
@@ -112,72 +100,6 @@ def pool_records(records: list[dict]) -> Pooled:
     else:
         w_lo = w_hi = deff = float("nan")
     return Pooled(len(records), n, k, k / n, lo, hi, len(counts), w_lo, w_hi, deff)
-
-
-def chi2_sf(x: float, df: int) -> float:
-    """P(X >= x) for X chi-square with ``df`` degrees of freedom: 1 - P(df/2, x/2), the
-    regularized lower incomplete gamma function by its power series
-
-        P(a, t) = t^a e^-t / Gamma(a) * sum_k t^k / (a (a + 1) ... (a + k)),
-
-    which converges for every t (here t stays small: tens at most)."""
-    if df < 1:
-        raise ValueError(f"chi2_sf: df must be >= 1; got {df}")
-    if x <= 0:
-        return 1.0
-    a, t = df / 2.0, x / 2.0
-    term = total = 1.0 / a
-    k = 0
-    while term > 1e-17 * total:
-        k += 1
-        term *= t / (a + k)
-        total += term
-    lower = math.exp(a * math.log(t) - t - math.lgamma(a)) * total
-    return max(0.0, 1.0 - lower)
-
-
-def _rate_and_variances(records: list[dict]) -> tuple[set, float, float, float]:
-    """(world keys, rate, variance by flight, variance by world) of pooled ``records``."""
-    counts = world_counts(records)
-    if len(counts) < 2:
-        raise ValueError("pool --split: every group needs at least 2 worlds")
-    yc, mc = np.array(list(counts.values())).T
-    p, var_world = world_variance(yc, mc)
-    var_flight = p * (1 - p) / mc.sum()
-    return set(counts), p, var_flight, max(var_world, var_flight)
-
-
-def groups_differ(groups: list[list[dict]]) -> dict:
-    """Test that G groups of records, on disjoint worlds, fly at one rate (module
-    docstring): {"df", "shared_worlds", "chi2_flight", "p_flight", "chi2_world",
-    "p_world"}."""
-    if len(groups) < 2:
-        raise ValueError(f"pool --split: needs at least 2 groups to compare; got "
-                         f"{len(groups)}")
-    stats = [_rate_and_variances(g) for g in groups]
-    # Two evaluation seeds draw their worlds from a million seeds, so a world now and then
-    # turns up in both (a handful in thousands): negligible. Groups that share more than
-    # 5% of their worlds are a paired question instead.
-    shared = 0
-    for i, (keys_i, *_) in enumerate(stats):
-        for keys_j, *_ in stats[i + 1:]:
-            both = len(keys_i & keys_j)
-            if both > 0.05 * min(len(keys_i), len(keys_j)):
-                raise ValueError(f"pool --split: two groups share {both} of their worlds, so "
-                                 f"they are not independent samples; compare them paired "
-                                 f"(--against)")
-            shared += both
-    rates = np.array([s[1] for s in stats])
-    out = {"df": len(groups) - 1, "shared_worlds": shared}
-    for name, col in (("flight", 2), ("world", 3)):
-        v = np.array([s[col] for s in stats])
-        if not (v > 0).all():
-            raise ValueError("pool --split: a group flies every flight alike (rate 0 or "
-                             "1), so it has no variance to test against")
-        p_bar = float((rates / v).sum() / (1 / v).sum())
-        x2 = float(((rates - p_bar) ** 2 / v).sum())
-        out[f"chi2_{name}"], out[f"p_{name}"] = x2, chi2_sf(x2, len(groups) - 1)
-    return out
 
 
 def paired_difference(a: list[dict], b: list[dict], z: float = 1.96) -> tuple:
@@ -251,10 +173,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a second group: the --where conditions with these keys "
                         "replaced; print the first group's rate minus this one's, paired "
                         "by world")
-    p.add_argument("--split", default=None, metavar="KEY",
-                   help="also pool each value of KEY apart (e.g. seed: each set of test "
-                        "worlds) and test whether the groups' rates differ")
-    p.add_argument("--each", action="store_true", help="print each record's line too")
 
 
 def _check_conditions(conditions: list[str], flag: str) -> None:
@@ -276,27 +194,7 @@ def run(args) -> int:
 def _run(args) -> int:
     records = read_records(args.files)
     group = [r for r in records if _matches(r, args.where)]
-    if args.each:
-        for r in group:
-            print(f"  {r.get('spec', r['policy'])} {r['scenario']} seed {r['seed']}: "
-                  f"{r['rate']:.4f} ({r['successes']}/{r['flights']})")
     print(pool_records(group).line("pooled"))
-    if args.split:
-        values = sorted({str(r.get(args.split)) for r in group})
-        parts = [[r for r in group if str(r.get(args.split)) == v] for v in values]
-        for v, part in zip(values, parts):
-            print("  " + pool_records(part).line(f"{args.split}={v}"))
-        try:
-            t = groups_differ(parts)
-        except ValueError as e:        # no test possible; the groups' lines still stand
-            n = f" {len(parts)}" if len(parts) > 1 else ""
-            print(f"do the{n} groups differ? no test: {e}")
-        else:
-            note = (f" ({t['shared_worlds']} world(s) drawn by two groups, ignored)"
-                    if t["shared_worlds"] else "")
-            print(f"do the {len(parts)} groups differ? chi-square ({t['df']} df) by flight "
-                  f"{t['chi2_flight']:.2f}, p = {t['p_flight']:.3f}; by world "
-                  f"{t['chi2_world']:.2f}, p = {t['p_world']:.3f}{note}")
     if args.against:
         other = [r for r in records if _matches(r, against_conditions(args.where,
                                                                         args.against))]

@@ -39,6 +39,7 @@ from pathlib import Path
 from ..config import at_least, setting, validate
 from .distill import DistilConfig, distil, student
 from .evaluate import EvalConfig, evaluate_spec
+from .flights import TEST_WORLDS
 from .models import MODELS, command_for, load_depth_estimator, save_trained
 from .train import SMOKE, TrainConfig, train
 
@@ -217,18 +218,17 @@ def _depth_models(out: Path, seed: int, budget: dict, scenarios, skip_depth: boo
     return depth_models
 
 
-def reproduce(out: Path, seed: int = 0, skip_depth: bool = False, tables: str = "both",
-              workers: int = 1, budget: dict | None = None) -> dict:
-    """Run the pipeline of the module docstring (``tables``: "5", "6" or "both");
-    ``budget`` (tests) overrides FULL's entries."""
+def reproduce(out: Path, seed: int = 0, skip_depth: bool = False, workers: int = 1,
+              budget: dict | None = None) -> dict:
+    """Run the pipeline of the module docstring (Tables 5 and 6); ``budget`` (tests)
+    overrides FULL's entries."""
     budget = {**FULL, **(budget or {})}
     out.mkdir(parents=True, exist_ok=True)
     results = {"budget": budget, "seed": seed, "depth": "pred", "table5": [], "table6": [],
                "started": time.strftime("%Y-%m-%d %H:%M:%S")}
-    scenarios = ["basic"] + (list(TRANSFER) if tables in ("6", "both") else [])
-    depth_models = _depth_models(out, seed, budget, scenarios, skip_depth)
+    depth_models = _depth_models(out, seed, budget, ["basic", *TRANSFER], skip_depth)
     models = {}
-    for spec in FAMILY if tables in ("5", "both") else ("d3rqn",):
+    for spec in FAMILY:
         cfg = _family_member(spec, seed, budget)
         name = f"{cfg.variant}{f'_stack{cfg.stack}' if cfg.stack > 1 else ''}_basic"
         models[spec] = _train_qnet(cfg, out / "agent" / f"{name}_gt_s{seed}")
@@ -242,11 +242,9 @@ def reproduce(out: Path, seed: int = 0, skip_depth: bool = False, tables: str = 
                           workers) for spec in policies]
 
     baselines = ["straight", "random", "reactive", "oracle"]
-    if tables in ("5", "both"):
-        results["table5"] = run_eval(baselines + [models[s] for s in FAMILY], "basic")
-    if tables in ("6", "both"):
-        for sc in TRANSFER:
-            results["table6"] += run_eval(baselines + [models["d3rqn"]], sc)
+    results["table5"] = run_eval(baselines + [models[s] for s in FAMILY], "basic")
+    for sc in TRANSFER:
+        results["table6"] += run_eval(baselines + [models["d3rqn"]], sc)
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
     (out / "results.json").write_text(json.dumps(results, indent=2))
     (out / "results.md").write_text(markdown_tables(results))
@@ -319,8 +317,6 @@ def reproduce_distilled(out: Path, seed: int = 0, students: int = 1,
     ``workers`` > 1 trains the parents (and the students) that many at a time, one
     process per core, and flies the evaluations' chunks likewise. Everything lands in
     ``out/distil`` (results.json, results.md)."""
-    if students < 1:
-        raise ValueError(f"reproduce_distilled: students must be >= 1; got {students}")
     budget = {**FULL, **(budget or {})}
     scenarios = ["basic"] + (list(TRANSFER) if tables in ("6", "both") else [])
     depth_models = _depth_models(out, seed, budget, scenarios, skip_depth)
@@ -391,7 +387,6 @@ def distilled_table(results: dict) -> str:
 QUICK_TRAIN = dict(steps=40_000, learning_starts=2_000, eps_decay_steps=25_000, hidden=64,
                    replay_capacity=40_000, updates_per_step=1.5, depth="pred", log_every=4_000)
 QUICK_FLIGHTS = 500
-TEST_WORLDS = 271828                 # the test set of world seeds (docs/results.md)
 QUICK_FAMILY = ("d3rqn", "ddrqn", "d3qn", "ddqn")
 QUICK_NOTE = """\
 What this quick run can show: orderings. Are the learned nets far above Straight and

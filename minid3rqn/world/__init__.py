@@ -9,7 +9,7 @@ are the environment around it; the policies fly baselines; ``topdown`` draws a m
 from .calibration import calibrate
 from .camera import Camera
 from .distance import (ClearanceField, clearance_field, nearest_distance, nearest_distance_batch,
-                       pymunk_nearest_distance, sample_start_pose)
+                       sample_start_pose)
 from .env import Discrete, DroneEnv, VecDroneEnv
 from .geometry import (backproject, inverse_warp_numpy, pose_to_camera_transform, project,
                        relative_transform)
@@ -24,7 +24,7 @@ from ..viz import depth_to_rgb  # re-exported for convenience
 
 __all__ = [
     "Camera", "Scene", "SceneBatch", "SCENARIOS", "make_scene", "render", "render_batch",
-    "nearest_distance", "nearest_distance_batch", "pymunk_nearest_distance",
+    "nearest_distance", "nearest_distance_batch",
     "ClearanceField", "clearance_field", "sample_start_pose", "pose_to_camera_transform",
     "relative_transform", "backproject", "project", "inverse_warp_numpy", "ACTIONS",
     "ACTION_INTERVAL", "SAFE_DISTANCE", "integrate_arc", "paper_reward", "step_drones",

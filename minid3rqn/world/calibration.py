@@ -1,6 +1,6 @@
 """Calibration of the scenarios with the baseline pilots: success rates over many flights.
 
-A flight succeeds when it completes ``max_steps`` steps (50, the paper's criterion)
+A flight succeeds when it completes 50 steps (the paper's criterion)
 without collision. Flight k of a scenario starts in world and pose drawn from the seed
 sequence [seed, k] (as ``VecDroneEnv``), so all policies fly the same worlds from the
 same starts, and a run split into chunks equals one big run.
@@ -29,31 +29,22 @@ def make_policy(name: str, seed: int, chunk_index: int):
         return Oracle()
     if name == "straight":
         return straight_policy
-    if name == "random":
-        return random_policy(np.random.default_rng([seed, 2 ** 20, chunk_index]))
-    raise ValueError(f"make_policy: name must be one of {POLICIES}; got {name!r}")
+    return random_policy(np.random.default_rng([seed, 2 ** 20, chunk_index]))
 
 
-def fly(scenario: str, policy, n_flights: int, seed: int = 0, first_index: int = 0,
-        max_steps: int = 50) -> dict:
-    """Fly ``n_flights`` flights to their end: dict of per-flight arrays "success",
-    "steps", "scene_seed" and "trajectories" (n_flights, max_steps + 1, 3)."""
-    env = VecDroneEnv(n_flights, scenario, seed=seed, max_steps=max_steps, observe=False,
-                      first_index=first_index)
+def fly(scenario: str, policy, n_flights: int, seed: int = 0, first_index: int = 0) -> dict:
+    """Fly ``n_flights`` flights to their end (50 steps at most): dict of per-flight
+    arrays "success" and "steps"."""
+    env = VecDroneEnv(n_flights, scenario, seed=seed, observe=False, first_index=first_index)
     env.reset()
-    traj = np.full((n_flights, max_steps + 1, 3), np.nan)
-    traj[:, 0] = env.poses
     info = None
     while env.active.any():
-        live = env.active.copy()
         _, _, _, _, info = env.step(policy(env))
-        traj[live, env.steps[live]] = env.poses[live]
-    return {"success": ~info["collided"], "steps": info["step"].copy(),
-            "scene_seed": info["scene_seed"].copy(), "trajectories": traj}
+    return {"success": ~info["collided"], "steps": info["step"].copy()}
 
 
 def calibrate(scenarios=SCENARIOS, n_flights: int = 2000, seed: int = 0, policies=POLICIES,
-              chunk: int = 250, max_steps: int = 50, verbose: bool = False) -> dict:
+              chunk: int = 250, verbose: bool = False) -> dict:
     """Success rates of each policy in each scenario over ``n_flights`` flights.
 
     Returns {scenario: {policy: {"success": rate, "successes": count, "flights": n,
@@ -77,7 +68,7 @@ def calibrate(scenarios=SCENARIOS, n_flights: int = 2000, seed: int = 0, policie
             success, steps = [], []
             for c, first in enumerate(range(0, n_flights, chunk)):
                 out = fly(scenario, make_policy(name, seed, c), min(chunk, n_flights - first),
-                          seed, first, max_steps)
+                          seed, first)
                 success.append(out["success"])
                 steps.append(out["steps"])
             success, steps = np.concatenate(success), np.concatenate(steps)

@@ -115,13 +115,6 @@ class Camera:
                          [0.0, self.fy, self.cy],
                          [0.0, 0.0, 1.0]])
 
-    @property
-    def K_inv(self) -> np.ndarray:
-        """(3, 3) float64 inverse of K."""
-        return np.array([[1.0 / self.fx, 0.0, -self.cx / self.fx],
-                         [0.0, 1.0 / self.fy, -self.cy / self.fy],
-                         [0.0, 0.0, 1.0]])
-
     def column_rays(self) -> np.ndarray:
         """(W,) float64 x_n = (u - cx) / fx: the ray slope of each column (read-only)."""
         return self._rays[0]

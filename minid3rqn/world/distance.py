@@ -9,7 +9,7 @@ For a point p the signed distance to one obstacle is
 
 negative inside solid shapes, and ``nearest_distance`` is the minimum over obstacles.
 These are pymunk's own formulas (``Space.point_query_nearest(...).distance`` for
-radius-0 shapes), which ``pymunk_nearest_distance`` evaluates one point at a time.
+radius-0 shapes); tests/test_world.py checks them against pymunk, one point at a time.
 
 The oracle planner samples clearance at thousands of points per step, so it reads a
 precomputed ``ClearanceField`` instead: the signed distance on a regular grid, made
@@ -18,7 +18,6 @@ negative outside the flyable region, interpolated bilinearly.
 from __future__ import annotations
 
 import numpy as np
-import pymunk
 
 from .kinematics import ACTION_INTERVAL, ACTIONS, SAFE_DISTANCE, plan_paths
 from .scene import Scene, SceneBatch
@@ -118,18 +117,6 @@ def nearest_distance_by_kind(batch: SceneBatch, xy) -> np.ndarray:
     return np.stack([_signed_distance(c, r, no_s, no_s, no_p, xy),
                      _signed_distance(no_c, no_r, no_s, no_s, poly, xy),
                      _signed_distance(no_c, no_r, a, b, no_p, xy)], axis=-1)
-
-
-def pymunk_nearest_distance(scene: Scene, xy) -> np.ndarray:
-    """Reference: ``scene.space.point_query_nearest`` one point at a time, (..., 2) -> (...)."""
-    xy = _check_xy(xy, "pymunk_nearest_distance")
-    flat = xy.reshape(-1, 2)
-    reach = float(np.hypot(*(scene.bounds[2:] - scene.bounds[:2]))) + 1e3
-    out = np.empty(len(flat))
-    for k, (x, y) in enumerate(flat):
-        info = scene.space.point_query_nearest((float(x), float(y)), reach, pymunk.ShapeFilter())
-        out[k] = np.inf if info is None else info.distance
-    return out.reshape(xy.shape[:-1])
 
 
 class ClearanceField:

@@ -45,10 +45,6 @@ class Discrete:
     def __init__(self, n: int):
         self.n = int(n)
 
-    def sample(self, rng: np.random.Generator, size=None):
-        """A uniform random action (or an int64 array of ``size`` of them)."""
-        return int(rng.integers(self.n)) if size is None else rng.integers(self.n, size=size)
-
     def contains(self, x) -> bool:
         return isinstance(x, (int, np.integer)) and not isinstance(x, bool) and 0 <= x < self.n
 

@@ -12,8 +12,7 @@
 All are closed (every camera ray hits a wall) and at most about 40 m across, so flying
 blind fails (a flight is 50 x 0.8 m = 40 m); the gaps, corridor widths and corners
 leave room for a pilot who looks ahead and turns on a 4 m radius (2 m/s at 0.5 rad/s).
-``make_scene(name, seed, **overrides)`` builds one; the keyword overrides replace the
-scenario's parameters (listed in ``DEFAULTS``).
+``make_scene(name, seed)`` builds one from the scenario's parameters (``DEFAULTS``).
 """
 from __future__ import annotations
 
@@ -27,7 +26,7 @@ SCENARIOS = ("basic", "channel", "intersections", "corners")
 # Pillars inside the corridors and streets of the transfer scenarios: one every
 # ``pillar_spacing`` metres along the centre line, ``pillar_offset`` metres to a random
 # side of it, so that flying down the middle hits them and the wide side stays open
-# (>= 2 m free for a 4.2 m corridor). ``pillar_spacing=(0, 0)`` gives empty corridors.
+# (>= 2 m free for a 4.2 m corridor).
 PILLARS = dict(pillar_radius=(0.25, 0.45), pillar_offset=(0.5, 1.0),
                pillar_spacing=(8.0, 12.0))
 
@@ -47,20 +46,15 @@ DEFAULTS = {
 }
 
 
-def make_scene(name: str, seed: int = 0, **overrides) -> Scene:
-    """Generate scenario ``name`` from ``seed``; the same (name, seed, overrides) give the
-    same world. Unknown names or parameters raise ValueError."""
+def make_scene(name: str, seed: int = 0) -> Scene:
+    """Generate scenario ``name`` from ``seed`` (its parameters: ``DEFAULTS[name]``); the
+    same (name, seed) give the same world. An unknown name raises ValueError."""
     if name not in SCENARIOS:
         raise ValueError(f"make_scene: name must be one of {SCENARIOS}; got {name!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise TypeError(f"make_scene: seed must be an int; got {type(seed).__name__}")
-    unknown = set(overrides) - set(DEFAULTS[name])
-    if unknown:
-        raise ValueError(f"make_scene: unknown parameter(s) {sorted(unknown)} for scenario "
-                         f"{name!r}; expected some of {sorted(DEFAULTS[name])}")
-    params = {**DEFAULTS[name], **overrides}
     rng = np.random.default_rng([int(seed), SCENARIOS.index(name)])
-    return _GENERATORS[name](rng, int(seed), **params)
+    return _GENERATORS[name](rng, int(seed), **DEFAULTS[name])
 
 
 def _uniform(rng, lohi):
@@ -177,11 +171,6 @@ def _corridor_scene(rng, seed, name, centre, width, wall_apps, floor, ceil, alti
                    start_free_ahead)
 
 
-def _pillar_appearance(rng):
-    """Pillars of the transfer worlds: saturated, any hue (posts, bollards, trees)."""
-    return random_appearance(rng, sat=(0.5, 0.9), val=(0.5, 0.9), size=(0.15, 0.3))
-
-
 def _sharp_turns(loop, degrees: float = 30.0) -> np.ndarray:
     """Vertices of a closed polyline where its direction turns by more than ``degrees``."""
     d_in = loop - np.roll(loop, 1, axis=0)
@@ -199,8 +188,6 @@ def _pillars_along(rng, path, closed, pillar_radius, pillar_offset, pillar_spaci
     falls within ``keep_out_radius`` of a ``keep_out`` point (sharp turns and crossings:
     the drone, which turns on a 4 m radius, needs the whole width there).
     """
-    if pillar_spacing[1] <= 0:
-        return []
     pts = np.concatenate([path, path[:1]]) if closed else path
     seg = np.diff(pts, axis=0)
     length = np.linalg.norm(seg, axis=1)
@@ -213,7 +200,9 @@ def _pillars_along(rng, path, closed, pillar_radius, pillar_offset, pillar_spaci
         normal = np.array([-direction[1], direction[0]])
         side = 1.0 if rng.random() < 0.5 else -1.0
         xy = pts[k] + (at - arc[k]) * direction + side * _uniform(rng, pillar_offset) * normal
-        radius, app = _uniform(rng, pillar_radius), _pillar_appearance(rng)
+        radius = _uniform(rng, pillar_radius)
+        # saturated, any hue (posts, bollards, trees)
+        app = random_appearance(rng, sat=(0.5, 0.9), val=(0.5, 0.9), size=(0.15, 0.3))
         if not np.any(np.linalg.norm(keep_out - xy, axis=1) < keep_out_radius):
             out.append((xy, radius, app))
         at += _uniform(rng, pillar_spacing)
