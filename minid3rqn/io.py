@@ -148,8 +148,7 @@ def blas_core() -> str:
     every later step elsewhere, ends as another draw of the same recipe. The same seed
     gives the same run on machines with the same kernels; the environment variable
     ``OPENBLAS_CORETYPE`` (set before NumPy is imported) chooses them by hand. Training
-    commands record this name in their model files (docs/beyond.md, "Determinism across
-    machines").
+    commands record this name in their model files (docs/d3rqn.md section 7).
     """
     import ctypes
     import glob
