@@ -38,9 +38,9 @@ EVAL_SEED = 12345
 # is 240k transitions). Learning shows after ~1,700 updates (mean steps rising above a
 # random pilot's ~11), success soon after. "tiny" is a look at the mechanics (too short
 # to learn much); "smoke" is for tests. ``minutes``: a whole run (training, the test
-# flights, a GIF), measured as its CPU time, which is its length on a free core
-# (benchmarks/bench_examples.py records it). Seed 0: small 3.1 (the paper's setting) to
-# 3.4 (exercise 1's reference solution); tiny 1.0; depth small 2.6, tiny 0.4.
+# flights, a GIF), on a free core (benchmarks/bench_examples.py records it). Seed 0,
+# an otherwise idle 2-core machine: small 2.5 (the paper's setting), tiny 0.8; depth
+# small 2.0 (L1, collecting the frames included), tiny 0.4.
 AGENT_BUDGETS = {
     "smoke": dict(train=dict(steps=256, learning_starts=64, n_envs=8, hidden=16,
                              replay_capacity=4_000, eps_decay_steps=200, log_every=64,
@@ -49,16 +49,16 @@ AGENT_BUDGETS = {
     "tiny": dict(train=dict(steps=12_000, learning_starts=2_000, n_envs=16, hidden=64,
                             replay_capacity=12_000, eps_decay_steps=8_000, log_every=2_000,
                             updates_per_step=1.5),
-                 flights=100, minutes=1),
+                 flights=100, minutes=0.8),
     "small": dict(train=dict(steps=40_000, learning_starts=2_000, n_envs=16, hidden=64,
                              replay_capacity=40_000, eps_decay_steps=25_000, log_every=4_000,
                              updates_per_step=1.5),
-                  flights=200, minutes=3.5),
+                  flights=200, minutes=2.5),
 }
 DEPTH_BUDGETS = {
     "smoke": dict(frames=60, test_frames=30, iterations=3, log_every=1, minutes=0.2),
-    "tiny": dict(frames=600, test_frames=100, iterations=300, log_every=50, minutes=0.5),
-    "small": dict(frames=2000, test_frames=200, iterations=2000, log_every=100, minutes=2.5),
+    "tiny": dict(frames=600, test_frames=100, iterations=300, log_every=50, minutes=0.4),
+    "small": dict(frames=2000, test_frames=200, iterations=2000, log_every=100, minutes=2),
 }
 
 
