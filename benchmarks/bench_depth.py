@@ -79,9 +79,10 @@ def _child(threads: int, repeat: int) -> dict:
     def ours_infer_b1():
         fast(frames_nhwc[:1])
 
-    # Test-time flip (DepthEstimator(flip=True)): the frame and its mirror, uint8 in.
+    # Test-time flip (FlipAveraged): the frame and its mirror, uint8 in.
     from minid3rqn.depth.evaluate import DepthEstimator
-    flip_est = DepthEstimator(disp, 1.0, {"height": h, "width": w}, flip=True)
+    from minid3rqn.depth.flip import FlipAveraged
+    flip_est = FlipAveraged(DepthEstimator(disp, 1.0, {"height": h, "width": w}))
     frames_u8 = (frames_nhwc * 255).astype(np.uint8)
     flip_est.predict_disp(frames_u8)        # takes its snapshot now, like ``fast`` above
 

@@ -235,8 +235,10 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
         est, depth_name = load_depth_estimator(depth_path, flip), f"DispNet {depth_path.name}"
     else:   # the speed does not depend on the weights: time an untrained DispNet
         from minid3rqn.depth.evaluate import DepthEstimator
+        from minid3rqn.depth.flip import FlipAveraged
         from minid3rqn.nets.dispnet import DispNet
-        est = DepthEstimator(DispNet(), flip=flip)
+        est = DepthEstimator(DispNet())
+        est = FlipAveraged(est) if flip else est
         depth_name = "DispNet (default architecture, untrained)"
     if flip:
         depth_name += ", test-time flip"

@@ -13,6 +13,7 @@ import pytest
 
 from minid3rqn import autograd as ag
 from minid3rqn.depth.evaluate import DepthEstimator
+from minid3rqn.depth.flip import FlipAveraged
 from minid3rqn.nets.dispnet import DispNet
 from minid3rqn.nets.fast import (ConvInference, DispNetInference, bias_elu_, qnet_step,
                                  upsample_conv_phases)
@@ -175,7 +176,7 @@ def test_inference_is_a_snapshot_and_a_new_estimator_rereads_weights():
 def test_flip_averages_the_mirrored_prediction_and_is_mirror_equivariant():
     net = _random_net(np.float32, encoder=(8, 12), decoder=(4, 8), n_scales=2)
     plain = DepthEstimator(net, 2.0, {"height": 16, "width": 24})
-    flip = DepthEstimator(net, 2.0, {"height": 16, "width": 24}, flip=True)
+    flip = FlipAveraged(DepthEstimator(net, 2.0, {"height": 16, "width": 24}))
     rgb = np.random.default_rng(12).integers(0, 256, (3, 16, 24, 3), dtype=np.uint8)
     mirrored = np.ascontiguousarray(rgb[:, :, ::-1])
     want = 0.5 * (plain.predict_disp(rgb) + plain.predict_disp(mirrored)[:, :, ::-1])
@@ -189,10 +190,13 @@ def test_flip_averages_the_mirrored_prediction_and_is_mirror_equivariant():
     np.testing.assert_allclose(flip.predict(rgb[1]), flip.predict(rgb)[1], rtol=1e-4)
 
 
-def test_load_with_flip(tmp_path):
+def test_the_flip_wraps_a_loaded_estimator_and_keeps_its_scale(tmp_path):
+    from minid3rqn.rl.models import load_depth_estimator
     net = _random_net(np.float32, encoder=(8, 12), decoder=(4, 8), n_scales=2)
     path = DepthEstimator(net, 2.0, {"height": 16, "width": 24}).save(tmp_path / "m.npz")
-    assert not DepthEstimator.load(path).flip and DepthEstimator.load(path, flip=True).flip
+    plain, flip = load_depth_estimator(path), load_depth_estimator(path, flip=True)
+    assert isinstance(plain, DepthEstimator) and isinstance(flip, FlipAveraged)
+    assert flip.scale == plain.scale == 2.0 and flip.meta == plain.meta
 
 
 # -- the shipped model on rendered frames ------------------------------------------------

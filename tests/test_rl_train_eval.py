@@ -229,8 +229,11 @@ def test_cli_smoke(tmp_path, capsys):
             "--json", tmp_path / "f.jsonl"]]) == 0
         assert json.loads((tmp_path / "f.jsonl").read_text())["depth_flip"] is True
         # the flag reaches the estimator that flies
-        assert models.depth_estimator_for("pred", str(SHIPPED_DEPTH), "basic", True).flip
-        assert not models.depth_estimator_for("pred", str(SHIPPED_DEPTH), "basic").flip
+        from minid3rqn.depth.flip import FlipAveraged
+        assert isinstance(models.depth_estimator_for("pred", str(SHIPPED_DEPTH), "basic",
+                                                     True), FlipAveraged)
+        assert not isinstance(models.depth_estimator_for("pred", str(SHIPPED_DEPTH), "basic"),
+                              FlipAveraged)
     ens = models.load_policy(f"{model}+{model}")          # an ensemble spec
     assert ens.name.endswith("-ens2") and len(ens.members) == 2
     one = models.load_policy(str(model), mirror=True)     # a net and its mirror image

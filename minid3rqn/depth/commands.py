@@ -208,6 +208,7 @@ def run_eval_depth(args) -> int:
     import numpy as np
 
     from .evaluate import DepthEstimator, comparison_picture, errors_by_depth, evaluate
+    from .flip import FlipAveraged
     if not Path(args.model).is_file():
         raise UsageError(f"--model: no file {args.model!r}")
     data = from_args(CollectConfig, _options(args, CollectConfig))
@@ -224,9 +225,11 @@ def run_eval_depth(args) -> int:
     else:
         check_output(path, "--test-data", suffix=".npz")
     try:
-        estimator = DepthEstimator.load(args.model, flip=args.flip_tta)
+        estimator = DepthEstimator.load(args.model)
     except ValueError as e:
         raise UsageError(f"--model: {str(e).removeprefix('DepthEstimator.load: ')}") from None
+    if args.flip_tta:
+        estimator = FlipAveraged(estimator)
     test = load_sequence(path) if path.is_file() else collect_sequence(held_out(data), path)
     t0 = time.time()
     results = evaluate(estimator, test)

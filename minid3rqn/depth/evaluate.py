@@ -49,16 +49,13 @@ class DepthEstimator:
         dispnet: a trained DispNet.
         scale: metres per unit of 1 / disp.
         meta: free-form metadata (command, seed, results) from the model file.
-        flip: test-time flip averaging (monodepth's post-processing): the disparity is
-            the mean of the network's disparity for the frame and, flipped back, for the
-            frame mirrored left-right (a mirrored world is as likely as the world, so
-            the errors on the two views are partly independent). Twice the cost.
+
+    Our test-time flip (the mean with the mirrored frame's disparity) wraps an
+    estimator: ``depth/flip.py: FlipAveraged``.
     """
 
-    def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None,
-                 flip: bool = False):
+    def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None):
         self.net, self.scale, self.meta = dispnet, float(scale), meta or {}
-        self.flip = bool(flip)
         self._fast = None                   # DispNetInference, built at the first predict
         self.height = self.meta.get("height", 32)
         self.width = self.meta.get("width", 104)
@@ -72,8 +69,8 @@ class DepthEstimator:
         return save_npz(path, state, meta)
 
     @classmethod
-    def load(cls, path, flip: bool = False) -> "DepthEstimator":
-        """A model file written by ``save``; ``flip``: see the class doc."""
+    def load(cls, path) -> "DepthEstimator":
+        """A model file written by ``save``."""
         arrays, meta = load_npz(path)
         if not meta or "dispnet" not in meta:
             raise ValueError(f"DepthEstimator.load: {str(path)!r} is not a depth model file "
@@ -82,7 +79,7 @@ class DepthEstimator:
         net = DispNet(tuple(c["encoder"]), tuple(c["decoder"]), c["n_scales"],
                       c["disp_scale"], c["min_disp"])
         net.load_state_dict(arrays)
-        return cls(net, meta.get("scale", 1.0), meta, flip)
+        return cls(net, meta.get("scale", 1.0), meta)
 
     # -- inference -------------------------------------------------------------------
     def _frames(self, rgb) -> tuple[np.ndarray, bool]:
@@ -105,16 +102,11 @@ class DepthEstimator:
 
         Equal (to float32 round-off) to the autograd forward ``net(rgb as (N, 3, H, W)
         float32 / 255, scales=1)[0]``; computed by the graph-free ``DispNetInference``.
-        With ``flip``: the mean of that and its value on the mirrored frames, mirrored
-        back.
         """
         rgb, single = self._frames(rgb)
         if self._fast is None:
             self._fast = DispNetInference(self.net)
         out = self._fast(rgb).astype(np.float32, copy=False)
-        if self.flip:
-            mirrored = self._fast(np.ascontiguousarray(rgb[:, :, ::-1]))
-            out = 0.5 * (out + mirrored[:, :, ::-1].astype(np.float32, copy=False))
         return out[0] if single else out
 
     def predict(self, rgb) -> np.ndarray:

@@ -358,7 +358,7 @@ def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
         print(warning, file=sys.stderr, flush=True)
     res = evaluate_policy(pol, cfg.scenario, cfg.flights, cfg.seed, cfg.steps, cfg.chunk,
                           cfg.depth, depth_estimator, progress=progress, workers=cfg.workers)
-    flip = depth_estimator is not None and depth_estimator.flip
+    flip = depth_estimator is not None and cfg.flip_tta
     how = [f"{cfg.depth} depth"] + (["flip"] if flip else [])
     if spec not in BASELINES:
         what = f"  {spec} ({', '.join(how + (['mirror'] if cfg.mirror else []))})"

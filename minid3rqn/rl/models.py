@@ -39,7 +39,9 @@ def load_depth_estimator(path, flip: bool = False):
     """The DispNet at ``path`` as a depth estimator; ``flip``: also on the mirrored frame,
     the two disparities averaged (ours)."""
     from ..depth.evaluate import DepthEstimator
-    return DepthEstimator.load(path, flip=flip)
+    from ..depth.flip import FlipAveraged
+    estimator = DepthEstimator.load(path)
+    return FlipAveraged(estimator) if flip else estimator
 
 
 def depth_estimator_for(depth: str, depth_model=None, scenario: str = "basic",
