@@ -291,7 +291,7 @@ def _qnet(width, variant="d3rqn", seed=0, convs=None):
 @pytest.mark.parametrize("variant", ["d3rqn", "ddrqn"])
 def test_a_widened_net_starts_with_the_same_q_values_and_can_learn(variant):
     from minid3rqn import autograd as ag
-    from minid3rqn.nets.qnet import widen_recurrent_state
+    from minid3rqn.nets.widen import widen_recurrent_state
     narrow, wide = _qnet(8, variant, seed=1), _qnet(13, variant, seed=2)
     wide.load_state_dict(widen_recurrent_state(narrow.state_dict(), wide.state_dict()))
     obs = np.random.default_rng(3).random((6, 2, 1, 32, 104)).astype(np.float32)
@@ -305,7 +305,7 @@ def test_a_widened_net_starts_with_the_same_q_values_and_can_learn(variant):
 
 
 def test_widening_refuses_what_it_cannot_do(tmp_path):
-    from minid3rqn.nets.qnet import widen_recurrent_state
+    from minid3rqn.nets.widen import widen_recurrent_state
     wide = _qnet(16)
     with pytest.raises(ValueError, match="at least as wide.*16.*got 8"):
         widen_recurrent_state(wide.state_dict(), _qnet(8).state_dict())

@@ -227,7 +227,7 @@ class Distillation:
 def _widen(agent, path) -> None:
     """Load a Q-net with a narrower LSTM into ``agent``, grown (``widen_recurrent_state``)."""
     from ..io import load_npz
-    from ..nets.qnet import widen_recurrent_state
+    from ..nets.widen import widen_recurrent_state
     old, _ = load_npz(path)
     agent.online.load_state_dict(widen_recurrent_state(old, agent.online.state_dict()))
 
