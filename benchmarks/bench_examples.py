@@ -1,8 +1,9 @@
 """How long the learning path's commands take: each example at its defaults, and the
-classroom exercise runs (their paper settings, `--baseline`), timed one after the other
-on this machine, as a student runs them.
+classroom exercise runs (their paper settings, `--baseline`; the tiny budget; exercise
+7's reference solution), timed one after the other on this machine, as a student runs
+them.
 
-    python benchmarks/bench_examples.py                      # all of them (about 25 min)
+    python benchmarks/bench_examples.py                      # all of them (about 30 min)
     python benchmarks/bench_examples.py --only 01 05 reward  # some
     python benchmarks/bench_examples.py --only 04-full       # example 04's full run, alone
     python benchmarks/bench_examples.py --only reproduce-quick   # Tables 5 and 6, quick
@@ -45,15 +46,30 @@ def commands() -> dict[str, list[str]]:
             "fly": [py, "-m", "minid3rqn", "fly", "--seed", "0"],
             "reproduce-quick": [py, "-m", "minid3rqn", "reproduce", "--quick", "--workers", "2"],
             **{name: [py, "-m", "minid3rqn", "exercise", name, "--baseline"]
-               for name in EXERCISES}}
+               for name in EXERCISES},
+            # the tiny budget, and exercise 7's reference solution (SSIM + L1) on the
+            # frames its baseline collected (SETUP runs that baseline first, untimed)
+            "reward-tiny": [py, "-m", "minid3rqn", "exercise", "reward", "--baseline",
+                            "--budget", "tiny"],
+            "depth-loss-tiny": [py, "-m", "minid3rqn", "exercise", "depth-loss", "--baseline",
+                                "--budget", "tiny"],
+            "depth-loss-ssim": [py, "-m", "minid3rqn", "exercise", "depth-loss", "--file",
+                                str(ROOT / "docs" / "solutions" / "photometric.py")]}
 
 
-def timed(argv: list[str]) -> dict:
-    """Run ``argv`` in a fresh folder; wall and CPU seconds, load average, exit code."""
+# name -> the command run before it in the same folder, not timed
+SETUP = {"depth-loss-ssim": "depth-loss"}
+
+
+def timed(argv: list[str], setup: list[str] | None = None) -> dict:
+    """Run ``argv`` in a fresh folder (after ``setup``, untimed, in the same folder); wall
+    and CPU seconds, load average, exit code."""
     env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=str(ROOT))
-    load = os.getloadavg()[0]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     with tempfile.TemporaryDirectory() as tmp:
+        if setup:
+            subprocess.run(setup, cwd=tmp, env=env, capture_output=True, check=True)
+        load = os.getloadavg()[0]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
         done = subprocess.run(argv, cwd=tmp, env=env, stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True)
@@ -83,7 +99,7 @@ def main() -> int:
     for name, argv in table.items():
         if (name not in args.only) if args.only else name in LONG:
             continue
-        row = {"name": name, "command": " ".join(argv[1:]), **timed(argv),
+        row = {"name": name, "command": " ".join(argv[1:]), **timed(argv, table.get(SETUP.get(name))),
                "cores": os.cpu_count(), "machine": platform.processor() or platform.machine(),
                "date": time.strftime("%Y-%m-%d %H:%M")}
         print(f"{name:12s} {row['seconds']:8.1f} s wall {row['cpu_seconds']:8.1f} s CPU  "

@@ -25,12 +25,10 @@ class FlipAveraged:
 
     def predict_disp(self, rgb) -> np.ndarray:
         """rgb uint8 (N, H, W, 3) or (H, W, 3) -> the averaged disparity, float32."""
-        rgb = np.asarray(rgb)
-        frames = rgb[None] if rgb.ndim == 3 else rgb
-        disp = self.estimator.predict_disp(frames)
-        mirrored = self.estimator.predict_disp(np.ascontiguousarray(frames[:, :, ::-1]))
-        out = 0.5 * (disp + mirrored[:, :, ::-1])
-        return out[0] if rgb.ndim == 3 else out
+        rgb = np.asarray(rgb)                           # width is the axis before colour
+        disp = self.estimator.predict_disp(rgb)
+        mirrored = self.estimator.predict_disp(np.ascontiguousarray(rgb[..., ::-1, :]))
+        return 0.5 * (disp + mirrored[..., ::-1])
 
     def predict(self, rgb) -> np.ndarray:
         """rgb uint8 (N, H, W, 3) -> depth float32 (N, H, W) in metres: scale / disp."""
