@@ -84,6 +84,10 @@ def run_exercise(args) -> int:
     import sys
     from .runner import run_exercise as run
     _find(args.exercise)
+    if args.seed < 0:
+        raise UsageError(f"--seed: expected a number >= 0; got {args.seed}")
+    if args.file is not None and not Path(args.file).is_file():
+        raise UsageError(f"--file: {args.file!r} is not a file (expected your exercise file)")
     result = run(args.exercise, file=args.file, baseline=args.baseline, budget=args.budget,
                  variant=args.variant, seed=args.seed, progress=sys.stderr.isatty())
     return 0 if result.get("passed", True) else 1

@@ -376,8 +376,9 @@ def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "sm
               f"See {ex.doc} for the follow-up (use your op in a network).")
         return {"exercise": ex.name, "passed": report.passed}
     if report is not None and not report.passed:
+        again = f" --file {file}" if file else ""
         raise SystemExit(f"exercise {ex.name}: fix the problems above first "
-                         f"(python -m minid3rqn check {ex.name})")
+                         f"(python -m minid3rqn check {ex.name}{again})")
     module = None if path is None else report.module
     named = path.stem if path is not None and path.name != ex.filename else None
     if ex.trains == "depth":

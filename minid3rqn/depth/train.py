@@ -67,7 +67,7 @@ class TrainConfig:
     lr: float = setting(5e-4, "Adam's learning rate (paper: 5e-5; 10x trains faster here)",
                         source="budget", check=positive)
     seed: int = setting(0, "weights, batches, flips, gyro noise (and the frames train-depth "
-                           "collects)", source="run")
+                           "collects)", source="run", check=at_least(0))
     lr_decay_at: int | None = setting(None, "from this iteration on, lr x 0.1 (none: never)",
                                       source="ours", check=at_least(1))
     init_disp: float = setting(0.5, "disparity the heads start at (1 / metres): 0.5 = 2 m, "

@@ -35,7 +35,8 @@ class FlyConfig:
                          source="run", choices=("gt", "pred"))
     flights: int = setting(32, "flights for the success rate (the DispNet runs on every "
                                "frame: keep it small)", source="run", check=at_least(1))
-    seed: int | None = setting(None, "world seed (none: random)", source="run")
+    seed: int | None = setting(None, "world seed (none: random)", source="run",
+                               check=at_least(0))
     gif: str = setting("runs/fly.gif", "the GIF of flight 0", source="run")
     mirror: bool = setting(False, "each Q-net also flies the mirrored view (a free "
                                   "two-member ensemble)", cli="main")

@@ -91,7 +91,7 @@ class TrainConfig:
     scenario: str = setting("basic", "the training worlds", source="run",
                             choices=("basic", "channel", "intersections", "corners"))
     seed: int = setting(0, "seeds the nets, the worlds, exploration and sampling",
-                        source="run")
+                        source="run", check=at_least(0))
     depth: str = setting("gt", "what the Q-net reads: GT depth or the DispNet's",
                          source="run", choices=("gt", "pred"))
     init_model: str = setting("", "start from this Q-net .npz (fine-tuning)", source="run")

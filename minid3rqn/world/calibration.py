@@ -97,5 +97,7 @@ def run(args) -> int:
     from ..config import UsageError
     if args.n_flights < 1:
         raise UsageError(f"--n-flights: expected a number >= 1; got {args.n_flights}")
+    if args.seed < 0:
+        raise UsageError(f"--seed: expected a number >= 0; got {args.seed}")
     calibrate(args.scenarios, args.n_flights, args.seed, verbose=True)
     return 0
