@@ -111,6 +111,9 @@ def main(argv=None) -> int:
         print(f"{name}: interrupted (Ctrl-C); files already written are whole",
               file=sys.stderr)
         return 130
+    except FloatingPointError as e:   # a training diverged (e.g. a learning rate too large)
+        print(f"{name}: the training diverged ({e}); nothing more was saved", file=sys.stderr)
+        return 1
     except MemoryError as e:   # e.g. a replay larger than the machine's memory
         print(f"{name}: not enough memory: {e}", file=sys.stderr)
         return 1

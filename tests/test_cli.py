@@ -62,3 +62,13 @@ def test_every_option_has_help(name):
     sub = next(a for a in parser._actions if a.dest == "command").choices[name]
     silent = [a.option_strings or a.dest for a in sub._actions if not (a.help or "").strip()]
     assert not silent, f"{name}: options without help text: {silent}"
+
+
+def test_a_diverging_training_ends_in_one_line(tmp_path, capsys):
+    """A learning rate far too large: the gradients become NaN; the command says so in one
+    line (exit status 1), with no traceback and no model written."""
+    code = main(["train-agent", "--smoke", "--lr", "1e11", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 1 and "Traceback" not in err
+    assert "the training diverged" in err.strip().splitlines()[-1]
+    assert not (tmp_path / "run" / "model.npz").exists()

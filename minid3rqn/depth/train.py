@@ -183,14 +183,14 @@ class Trainer:
         for name, t in [("disparity", d) for d in disps] + [("pose", poses)]:
             if not np.isfinite(t.data).all():
                 raise FloatingPointError(
-                    f"train-depth: the predicted {name} holds NaN/inf at iteration "
+                    f"the predicted {name} holds NaN/inf at iteration "
                     f"{self.iteration + 1}, so the loss would be NaN; try a smaller lr")
         loss, info = view_synthesis_loss(target, sources, disps, poses, self.seq.K,
                                          self.cfg.loss, self.photometric_error)
         value = float(loss.data)
         if not math.isfinite(value):
             raise FloatingPointError(
-                f"train-depth: the loss became {value} at iteration {self.iteration + 1} "
+                f"the loss became {value} at iteration {self.iteration + 1} "
                 f"(photo {info['photo']}, smooth {info['smooth']}); try a smaller lr")
         self.opt.zero_grad()
         loss.backward()
