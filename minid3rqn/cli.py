@@ -33,9 +33,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "collect": ("minid3rqn.depth.commands", "fly a scripted pilot and save image sequences"),
     "train-depth": ("minid3rqn.depth.commands", "train DispNet + PoseNet by view synthesis"),
     "eval-depth": ("minid3rqn.depth.commands", "depth and pose error against ground truth"),
-    # the world (2.5D)
-    "calibrate": ("minid3rqn.world.calibration",
-                  "oracle / straight / random success in every scenario"),
     # the classroom
     "check": ("minid3rqn.classroom.commands", "check your solution to an exercise"),
     "exercise": ("minid3rqn.classroom.commands", "run an exercise's small experiment"),

@@ -166,10 +166,7 @@ CASES = [
      "--pictures: '{fx}/afile/p.png' cannot be made"),
     ("eval-depth --test-data {fx}/frames.npz --json " + str(MODELS / "depth_basic.json"),
      "--json: '" + str(MODELS / "depth_basic.json") + "' is inside"),
-    # calibrate, check, exercise
-    ("calibrate --n-flights 0", "--n-flights: expected a number >= 1"),
-    ("calibrate --scenarios moon", "--scenarios: invalid choice: 'moon'"),
-    ("calibrate --seed x", "--seed: invalid int value: 'x'"),
+    # check, exercise
     ("check", "the following arguments are required: exercise"),
     ("check nope", "unknown exercise 'nope'"),
     ("check all --file {fx}/afile", "--file: 'all' checks a folder of exercise files; got the file"),
@@ -188,7 +185,6 @@ CASES = [
     ("evaluate straight --seed -1", "--seed: expected a number >= 0; got -1"),
     ("collect --frames 20 --seed -1", "--seed: expected a number >= 0; got -1"),
     ("train-depth --seed -1", "--seed: expected a number >= 0; got -1"),
-    ("calibrate --seed -1", "--seed: expected a number >= 0; got -1"),
     ("exercise reward --seed -1", "--seed: expected a number >= 0; got -1"),
     # the command itself
     ("nope", "invalid choice: 'nope'"),

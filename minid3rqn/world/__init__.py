@@ -3,10 +3,8 @@
 Flow: ``make_scene`` builds a world (pymunk shapes + NumPy arrays); ``render`` /
 ``render_batch`` ray-cast RGB and ground-truth depth through a ``Camera``; ``step_drones``
 steps every drone (the arc flown, collision, reward), and ``VecDroneEnv`` / ``DroneEnv``
-are the environment around it; the policies fly baselines; ``topdown`` draws a map;
-``calibrate`` measures baseline success rates.
+are the environment around it; the policies fly baselines; ``topdown`` draws a map.
 """
-from .calibration import calibrate
 from .camera import Camera
 from .distance import (ClearanceField, clearance_field, nearest_distance, nearest_distance_batch,
                        sample_start_pose)
@@ -29,5 +27,5 @@ __all__ = [
     "relative_transform", "backproject", "project", "inverse_warp_numpy", "ACTIONS",
     "ACTION_INTERVAL", "SAFE_DISTANCE", "integrate_arc", "paper_reward", "step_drones",
     "Discrete", "DroneEnv", "VecDroneEnv", "straight_policy", "random_policy", "Oracle",
-    "oracle_policy", "topdown", "depth_to_rgb", "calibrate",
+    "oracle_policy", "topdown", "depth_to_rgb",
 ]
