@@ -23,7 +23,7 @@ Cases (all written twice below, once with ``minid3rqn.autograd`` and once with t
   16-32-64-96, each level conv 3x3 s2 + conv 3x3, ELU; decoder 16-16-32-64, each
   level conv 3x3, nearest upsample x2, crop, concat skip, conv 3x3; sigmoid disparity
   heads at 4 scales) on batch 4 at 32x104 and 64x208.
-- ``dispnet-sfm``: the SfMLearner-like variant of the brief: encoder kernels 7-5-3-3,
+- ``dispnet-sfm``: an SfMLearner-like variant: encoder kernels 7-5-3-3,
   channels 16-32-64-128, decoder 16-32-64-128, otherwise the same.
 - ``qnet``: the conv stack of ``minid3rqn/nets/qnet.py`` (32x104x1 -> conv 4x4 s2
   (4) -> conv 4x4 s2 (8) -> conv 3x3 (8), valid padding, ReLU; the paper's 8x8 s4,

@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import shlex
 import sys
 
 from .allocator import keep_freed_memory
-from .config import UsageError
+from .config import UsageError, shell_command
 from .io import RunStopped
 
 # command name -> (module, one-line help). Each module defines add_arguments(parser)
@@ -78,7 +77,7 @@ def continue_command(argv: list[str], sub: argparse.ArgumentParser) -> str:
         choice = [w for w in words if len(w) > 2 and ("--resume".startswith(w)
                                                       or "--overwrite".startswith(w))]
         words = [w for w in words if w not in choice] + ["--resume"]
-    return "python -m minid3rqn " + shlex.join(words)
+    return shell_command(words)
 
 
 def main(argv=None) -> int:

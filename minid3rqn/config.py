@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
 import types
 import typing
 from dataclasses import MISSING, field, fields, is_dataclass
@@ -181,12 +182,13 @@ def _parse_text(name: str, text: str, hint, option: str | None = None):
             return int(text)
         if kind is float:
             return float(text)
-        if kind is list:
-            return [int(x) if x.strip().lstrip("-").isdigit() else float(x)
-                    for x in text.split(",")]
+        if kind is list:    # numbers joined by ',', or a table: rows joined by ';'
+            rows = [[int(x) if x.strip().lstrip("-").isdigit() else float(x)
+                     for x in row.split(",")] for row in text.split(";")]
+            return rows if ";" in text else rows[0]
     except ValueError:
         words = {bool: "true or false", int: "an integer", float: "a number",
-                 list: "numbers joined by ','"}[kind]
+                 list: "numbers joined by ',' (a table: rows joined by ';')"}[kind]
         raise UsageError(f"{option or flag(name)}: expected {words}; got {text!r}") from None
     return text
 
@@ -325,9 +327,16 @@ def flat_settings(values: dict) -> dict:
     return out
 
 
+def _list_text(value: list) -> str:
+    """A list as the command line writes it: 1,2,3; a table 2,-0.5;2,0;2,0.5."""
+    if value and isinstance(value[0], list):
+        return ";".join(",".join(map(str, row)) for row in value)
+    return ",".join(map(str, value))
+
+
 def _shown(value) -> str:
     if isinstance(value, list):
-        return ",".join(map(str, value))
+        return _list_text(value)
     return "''" if value == "" else str(value).lower() if value is None else str(value)
 
 
@@ -368,6 +377,11 @@ def add_existing_option(parser: argparse.ArgumentParser, grows: str | None = Non
                         "folder is refused")
 
 
+def shell_command(words: list[str]) -> str:
+    """``python -m minid3rqn`` and ``words``, quoted for a shell where they need it."""
+    return "python -m minid3rqn " + shlex.join(map(str, words))
+
+
 def command_line(cls, cfg, main: tuple | None = None) -> list[str]:
     """The options that give ``cfg`` from the defaults ``cls()``: what a model file
     records, so its command reproduces it."""
@@ -378,7 +392,7 @@ def command_line(cls, cfg, main: tuple | None = None) -> list[str]:
         if value == default:
             continue
         name = path[-1]
-        text = ",".join(map(str, value)) if isinstance(value, list) else str(value)
+        text = _list_text(value) if isinstance(value, list) else str(value)
         if _is_main(f, name, main):
             if isinstance(value, bool):
                 out.append(flag(name) if value else "--no-" + flag(name)[2:])

@@ -72,3 +72,19 @@ def test_a_diverging_training_ends_in_one_line(tmp_path, capsys):
     assert code == 1 and "Traceback" not in err
     assert "the training diverged" in err.strip().splitlines()[-1]
     assert not (tmp_path / "run" / "model.npz").exists()
+
+
+def test_a_recorded_command_gives_back_its_settings():
+    """What a model file records (``command_for``) parses back to the same settings, an
+    action table (rows joined by ';') and a folder with a space in its name included."""
+    import shlex
+
+    from minid3rqn.cli import build_parser
+    from minid3rqn.config import from_args
+    from minid3rqn.rl.models import command_for
+    from minid3rqn.rl.train import TrainConfig
+    cfg = TrainConfig(actions=[[2, -0.5], [2, 0], [2, 0.5]], hfov_deg=60.0, steps=500)
+    words = shlex.split(command_for(cfg, "my runs/seven"))
+    assert words[:3] == ["python", "-m", "minid3rqn"] and words[-1] == "my runs/seven"
+    args = build_parser("train-agent").parse_args(words[3:])
+    assert from_args(TrainConfig, args) == cfg

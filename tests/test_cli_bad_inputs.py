@@ -51,6 +51,7 @@ CASES = [
     ("train-agent --set nope=1", "--set: expected NAME=VALUE"),
     ("train-agent --set n_envs=abc", "--set n_envs: expected an integer"),
     ("train-agent --set actions=1,2,3", "--set actions: expected rows of (speed"),
+    ("train-agent --set actions=2,0;2,x", "--set actions: expected numbers joined by ','"),
     ("train-agent --depth-model", "--depth-model: expected one argument"),
     ("train-agent --resume --overwrite", "--resume and --overwrite: give one of them"),
     ("train-agent --depth pred --depth-model nope.npz", "--depth-model: depth model 'nope.npz'"),

@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import as_dict, at_least, between, command_line, setting, validate
+from ..config import (as_dict, at_least, between, command_line, setting, shell_command,
+                      validate)
 from ..io import load_npz, save_npz
 from ..world.camera import Camera
 from ..world.distance import nearest_distance, sample_start_pose
@@ -272,8 +273,7 @@ def collect_sequence(cfg: CollectConfig, path, progress: bool = True) -> Sequenc
     that makes them, and return them as read back from the file."""
     data = collect(cfg.scenario, cfg.frames, cfg.frames_per_flight, cfg.seed,
                    progress=progress, late=cfg.late_turns)
-    command = " ".join(["python -m minid3rqn collect", *command_line(CollectConfig, cfg),
-                        "--out", str(path)])
+    command = shell_command(["collect", *command_line(CollectConfig, cfg), "--out", path])
     save_sequence(path, data, {**as_dict(cfg), "command": command})
     return load_sequence(path)
 

@@ -41,7 +41,7 @@ import numpy as np
 from .. import autograd as ag
 from ..autograd.optim import Adam
 from ..config import (as_dict, at_least, changed_settings, command_line, flat_settings,
-                      positive, setting, validate)
+                      positive, setting, shell_command, validate)
 from ..io import RunStopped, StopRequest, load_npz, machine, read_metadata, save_npz
 from ..nets.dispnet import DispNet
 from ..nets.posenet import PoseNet
@@ -390,13 +390,13 @@ def train_depth_command(cfg: TrainConfig, data: CollectConfig, run_dir, train_fi
     model file records beside it)."""
     shown = replace(CollectConfig(), scenario=data.scenario, frames=data.frames,
                     late_turns=data.late_turns)
-    parts = ["python -m minid3rqn train-depth", *command_line(CollectConfig, shown),
+    parts = ["train-depth", *command_line(CollectConfig, shown),
              *command_line(TrainConfig, cfg), "--dir", str(run_dir)]
     for flag, value in (("--data", train_file), ("--test-data", test_file),
                         ("--init-from", init_from)):
         if value is not None:
             parts += [flag, str(value)]
-    return " ".join(parts)
+    return shell_command(parts)
 
 
 def _frames(path: Path, data: CollectConfig, progress: bool, own: bool = False) -> Sequence:

@@ -44,7 +44,8 @@ def _estimator(depth: str, depth_model, scenario: str, flip: bool = False,
 def _run_options(p: argparse.ArgumentParser, out: str) -> None:
     p = p.add_argument_group("files")
     p.add_argument("--depth-model", default=None,
-                   help="DispNet .npz for --depth pred (default: the shipped one)")
+                   help="DispNet .npz when the net reads predicted depth "
+                        "(default: the shipped one)")
     p.add_argument("--out", default=None, help=f"run folder (default {out})")
     add_existing_option(p, grows="--steps")
     p.add_argument("--smoke", action="store_true", help="a few hundred steps (tests)")
@@ -118,7 +119,7 @@ def _trained(run, command: str, depth_model, t0: float, **extra) -> int:
 # -- train-agent -----------------------------------------------------------------------------
 def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
     from .train import TrainConfig
-    add_arguments(p, TrainConfig, hide=("actions",))
+    add_arguments(p, TrainConfig)
     _run_options(p, "runs/agent/<variant>_<scenario>_<depth>_s<seed>")
 
 
@@ -144,7 +145,7 @@ def run_train_agent(args) -> int:
 # -- distil ----------------------------------------------------------------------------------
 def add_arguments_distil(p: argparse.ArgumentParser) -> None:
     from .distill import DISTIL_OPTIONS, DistilConfig
-    add_arguments(p, DistilConfig, hide=("actions",), main=DISTIL_OPTIONS)
+    add_arguments(p, DistilConfig, main=DISTIL_OPTIONS)
     _run_options(p, "runs/distil/<scenario>_<depth>_s<seed>")
 
 

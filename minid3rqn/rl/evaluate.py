@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..config import ConfigError, at_least, setting, validate
+from ..config import ConfigError, at_least, setting, shell_command, validate
 from .flights import Flights, FlightsConfig
 from .policies import Policy
 
@@ -366,7 +366,7 @@ def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
     else:                                     # of these only the reactive rule reads depth
         what = f"  ({', '.join(how)})" if spec == "reactive" else ""
     print(res.line() + what, flush=True)
-    command = " ".join(["python -m minid3rqn evaluate", spec, *command_line(EvalConfig, cfg)])
+    command = shell_command(["evaluate", spec, *command_line(EvalConfig, cfg)])
     record = {**res.to_dict(), "spec": spec, "depth_flip": bool(flip),
               "mirror": bool(cfg.mirror and spec not in BASELINES), "chunk": cfg.chunk,
               "unfinished": warning is not None, "command": command}

@@ -132,7 +132,7 @@ def actions_and_camera(*policies):
 def command_for(cfg, out, depth_model=None) -> str:
     """The command that trains ``cfg`` (a TrainConfig: train-agent; a DistilConfig:
     distil) into the folder ``out``: what a model file records."""
-    from ..config import command_line
+    from ..config import command_line, shell_command
     from .distill import DISTIL_OPTIONS, DistilConfig
     from .train import TrainConfig
     if isinstance(cfg, DistilConfig):
@@ -141,7 +141,7 @@ def command_for(cfg, out, depth_model=None) -> str:
         words = ["train-agent", *command_line(TrainConfig, cfg)]
     if depth_model:
         words += ["--depth-model", str(depth_model)]
-    return "python -m minid3rqn " + " ".join(words + ["--out", str(out)])
+    return shell_command(words + ["--out", out])
 
 
 def save_trained(run, command: str, depth_model=None, seconds: float | None = None,

@@ -26,7 +26,7 @@ cannot:
    comparison; two intervals side by side keep it in twice.
 
     python -m minid3rqn pool runs/eval.jsonl --where scenario=intersections \\
-        --where 'spec=runs/e37_twin/*' --against spec=reactive
+        --where 'spec=runs/nets/*' --against spec=reactive
 
 ``--against`` keeps the ``--where`` conditions it does not name: above, the reactive rule
 in intersections.
@@ -127,7 +127,7 @@ def paired_difference(a: list[dict], b: list[dict], z: float = 1.96) -> tuple:
 
 def _matches(record: dict, conditions: list[str]) -> bool:
     """Every KEY=VALUE holds: the record's value as text equals VALUE, or matches it as a
-    shell pattern (``spec=runs/e37_twin/*``), or one of several joined by commas
+    shell pattern (``spec=runs/nets/*``), or one of several joined by commas
     (``seed=12345,24680,31415``)."""
     for cond in conditions:
         key, _, wants = cond.partition("=")

@@ -65,7 +65,7 @@ class ReproduceConfig:
     recipe: str = setting("paper", "paper: Tables 5 and 6; distil (ours): the distilled "
                                    "D3RQN (four GT parents, two distillation stages)",
                           source="run", choices=("paper", "distil"))
-    quick: bool = setting(False, "Table 5 and 6 in one class period (about 15 min on 2 "
+    quick: bool = setting(False, "Table 5 and 6 in one class period (about 12.5 min on 2 "
                                  "cores): the shipped DispNets, the classroom budget, 500 "
                                  "test flights per cell", source="run")
     skip_depth: bool = setting(False, "reuse the shipped depth models instead of training "

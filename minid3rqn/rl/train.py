@@ -51,7 +51,7 @@ def _conv_channels(v):
 def _action_table(v):
     rows = all(isinstance(r, list) and len(r) == 2 and all(map(math.isfinite, r))
                and r[0] >= 0 for r in v)
-    return None if v and rows else "rows of (speed >= 0, yaw rate)"
+    return None if v and rows else "rows of (speed >= 0, yaw rate), e.g. 2,-0.5;2,0;2,0.5"
 
 
 @dataclass
@@ -68,8 +68,8 @@ class TrainConfig:
                          check=at_least(1))
     learning_starts: int = setting(5_000, "transitions before the first update",
                                    source="budget", check=at_least(0))
-    replay_capacity: int = setting(100_000, "frames in the replay (uint8, ~340 MB)",
-                                   source="budget", check=at_least(64))
+    replay_capacity: int = setting(100_000, "frames in the replay (3.3 KB each: 100,000 "
+                                            "take 333 MB)", source="budget", check=at_least(64))
     eps_decay_steps: int = setting(50_000, "transitions over which epsilon falls",
                                    source="budget", check=at_least(1))
     hidden: int = setting(128, "LSTM / fully connected width", source="budget",
