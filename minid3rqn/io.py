@@ -105,13 +105,18 @@ def read_metadata(path) -> dict | None:
 
 
 def _last_line_problem(path: Path) -> str | None:
-    with open(path, "rb") as f:
-        size = f.seek(0, os.SEEK_END)
-        if size:
-            f.seek(size - 1)
-            if f.read(1) != b"\n":
-                return (f"{str(path)!r}: its last line is incomplete; repair the file before "
-                        f"appending to it")
+    """Why records may not be appended to the JSON-lines log ``path``, or None."""
+    data = path.read_bytes()
+    if not data:
+        return None
+    if not data.endswith(b"\n"):
+        return f"{str(path)!r}: its last line is incomplete; repair the file before appending to it"
+    try:
+        record = json.loads(data.rstrip(b"\n").rsplit(b"\n", 1)[-1])
+    except ValueError:
+        record = None
+    if not isinstance(record, dict):
+        return f"{str(path)!r}: its last line is not a JSON record; expected a JSON-lines log"
     return None
 
 
@@ -213,10 +218,11 @@ def check_output(path, option: str, folder: bool = False, suffix: str | None = N
 
 
 def check_log(path, option: str) -> Path:
-    """``check_output`` for a JSON-lines log that records are appended to: also refused if
-    its last line is incomplete (``append_jsonl`` would refuse it after the work)."""
+    """``check_output`` for a JSON-lines log (``.jsonl``) that records are appended to:
+    also refused if its last line is not a whole JSON record (``append_jsonl`` would
+    refuse it after the work)."""
     from .config import UsageError
-    path = check_output(path, option)
+    path = check_output(path, option, suffix=".jsonl")
     problem = _last_line_problem(path) if path.is_file() else None
     if problem:
         raise UsageError(f"{option}: {problem}")
@@ -224,14 +230,15 @@ def check_log(path, option: str) -> Path:
 
 
 def claim_run_folder(folder, existing: str | None, option: str,
-                     outputs: tuple = RUN_MARKS) -> bool:
+                     outputs: tuple = RUN_MARKS, inputs: dict | None = None) -> bool:
     """Check, before a training command works, that it may write its run into ``folder``
     (given with ``option``); returns True if it continues the run there.
 
     A folder that holds a run (``RUN_MARKS``) is written to only by an explicit choice:
     ``existing`` "resume" continues the run from its checkpoint; "overwrite" deletes the
     run's files (``outputs``) and starts afresh. Without either, a UsageError names the
-    folder and both choices: nothing is lost by a command run twice."""
+    folder and both choices: nothing is lost by a command run twice. ``inputs``
+    ({option: paths}) are the files the command reads: --overwrite refuses to delete one."""
     from .config import UsageError
     folder = check_output(folder, option, folder=True)
     held = [name for name in RUN_MARKS if (folder / name).is_file()]
@@ -243,6 +250,11 @@ def claim_run_folder(folder, existing: str | None, option: str,
         raise UsageError(f"{option}: {str(folder)!r} holds a run ({', '.join(held)}); give "
                          f"--resume to continue it or --overwrite to start it afresh")
     if existing == "overwrite":
+        for name, paths in (inputs or {}).items():
+            for path in [p for p in paths if p and Path(p).resolve().parent == folder.resolve()
+                         and Path(p).name in outputs]:
+                raise UsageError(f"{name}: {str(path)!r} is a file of the run in {str(folder)!r}, "
+                                 f"which --overwrite would delete; copy it elsewhere first")
         for name in outputs:
             (folder / name).unlink(missing_ok=True)
         return False

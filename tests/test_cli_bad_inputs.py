@@ -107,9 +107,12 @@ CASES = [
     ("evaluate reactive --depth pred --depth-model nope.npz", "--depth-model: depth model "
                                                               "'nope.npz'"),
     ("evaluate reactive --depth pred --depth-model {fx}/qnet.npz", "--depth-model: "),
-    ("evaluate straight --json {fx}/adir", "--json: '{fx}/adir' is a folder"),
+    ("evaluate straight --json {fx}/adir.jsonl", "--json: '{fx}/adir.jsonl' is a folder"),
     ("evaluate straight --json {fx}/afile/x.jsonl", "--json: '{fx}/afile/x.jsonl' cannot"),
     ("evaluate straight --json {fx}/half.jsonl", "--json: '{fx}/half.jsonl': its last line"),
+    ("evaluate straight --json {fx}/bad.jsonl", "--json: '{fx}/bad.jsonl': its last line is "
+                                                "not a JSON record"),
+    ("evaluate straight --json {fx}/qnet.json", "--json: expected a .jsonl file"),
     ("evaluate straight --json " + str(MODELS / "x.jsonl"), "--json: '" + str(MODELS) + ""),
     # reproduce
     ("reproduce --workers 0", "--workers: expected a number >= 1"),
@@ -161,7 +164,17 @@ CASES = [
     ("eval-depth --test-data {fx}/qnet.npz", "--test-data: '{fx}/qnet.npz' holds no frames"),
     ("eval-depth --scenario corners --test-data {fx}/frames.npz", "--test-data: "
      "'{fx}/frames.npz' holds frames of basic, not corners"),
-    ("eval-depth --test-data {fx}/frames.npz --json {fx}/adir", "--json: '{fx}/adir' is a"),
+    ("eval-depth --test-data {fx}/frames.npz --json {fx}/adir.json", "--json: '{fx}/adir.json' "
+                                                                      "is a"),
+    ("eval-depth --test-data {fx}/frames.npz --json r.txt", "--json: expected a .json file"),
+    ("eval-depth --test-data {fx}/frames.npz --json {fx}/old.json", "--json: '{fx}/old.json' "
+                                                                    "exists; give --overwrite"),
+    ("eval-depth --test-data {fx}/frames.npz --pictures {fx}/old.png", "--pictures: "
+                                                                       "'{fx}/old.png' exists"),
+    ("train-agent --smoke --out {fx}/run --overwrite --init-model {fx}/run/model.npz",
+     "--init-model: '{fx}/run/model.npz' is a file of the run in '{fx}/run', which --overwrite"),
+    ("train-depth --dir {fx}/drun --overwrite --init-from {fx}/drun/checkpoint.npz",
+     "--init-from: '{fx}/drun/checkpoint.npz' is a file of the run"),
     ("eval-depth --test-data {fx}/frames.npz --pictures p.txt", "--pictures: expected a .png"),
     ("eval-depth --test-data {fx}/frames.npz --pictures {fx}/afile/p.png",
      "--pictures: '{fx}/afile/p.png' cannot be made"),
@@ -214,6 +227,10 @@ def _make_files(fx: Path) -> None:
     (fx / "trunc.npz").write_bytes((fx / "qnet.npz").read_bytes()[:5000])
     (fx / "afile").write_text("a file where a folder is meant")
     (fx / "adir").mkdir()
+    (fx / "adir.json").mkdir()
+    (fx / "adir.jsonl").mkdir()
+    (fx / "old.json").write_text("{}")
+    (fx / "old.png").write_bytes(b"not really a picture")
     (fx / "half.jsonl").write_text('{"a": 1}\n{"a": 2')
     (fx / "bad.jsonl").write_text("not json\n")
     (fx / "old.jsonl").write_text('{"spec": "x", "scenario": "basic", "seed": 1}\n')

@@ -59,7 +59,8 @@ def test_collect_train_eval_smoke(tmp_path, capsys):
     assert read_metadata(run / "checkpoint.npz")["iteration"] == 4
     for extra in ([], ["--flip-tta"], ["--pictures", str(tmp_path / "p.png")]):
         assert _run(["eval-depth", "--model", str(run / "model.npz"), "--test-data",
-                     str(run / "test.npz"), "--json", str(tmp_path / "m.json"), *extra]) == 0
+                     str(run / "test.npz"), "--json", str(tmp_path / "m.json"), "--overwrite",
+                     *extra]) == 0
         got = json.loads((tmp_path / "m.json").read_text())
         assert 0 <= got["a1"] <= 1 and got["frames"] == len(load_sequence(run / "test.npz"))
     assert len(got["by_depth"]) == 5 and (tmp_path / "p.png").is_file()

@@ -147,7 +147,9 @@ def _check_frames(args, cfg: TrainConfig, data: CollectConfig, run_dir: Path) ->
 def _claim_depth_run(args, cfg: TrainConfig, run_dir: Path) -> str:
     """``io.claim_run_folder`` for --dir; with --resume, the checkpoint must be of these
     settings. Returns "new", "resume" or "finished" (nothing to do; said on stderr)."""
-    if not claim_run_folder(run_dir, args.existing, "--dir", DEPTH_OUTPUTS):
+    inputs = {"--init-from": [args.init_from], "--data": [args.data],
+              "--test-data": [args.test_data]}
+    if not claim_run_folder(run_dir, args.existing, "--dir", DEPTH_OUTPUTS, inputs=inputs):
         return "new"
     train = Path(args.data or run_dir / "train.npz").resolve()
     settings = {**flat_settings(as_dict(cfg)), "data": str(train)}
@@ -201,7 +203,8 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
                    help="average the disparity with its value on the mirrored frame, "
                         "mirrored back (test-time flip)")
     p.add_argument("--pictures", default=None, help="PNG: RGB | predicted | GT rows")
-    p.add_argument("--json", default=None, help="write the metrics here")
+    p.add_argument("--json", default=None, help="write the metrics to this .json file")
+    add_existing_option(p)
 
 
 def run_eval_depth(args) -> int:
@@ -212,10 +215,12 @@ def run_eval_depth(args) -> int:
     if not Path(args.model).is_file():
         raise UsageError(f"--model: no file {args.model!r}")
     data = from_args(CollectConfig, _options(args, CollectConfig))
-    for option, out, suffix in (("--json", args.json, None),
+    for option, out, suffix in (("--json", args.json, ".json"),
                                 ("--pictures", args.pictures, ".png")):
         if out:
             check_output(out, option, suffix=suffix)
+            if Path(out).exists() and args.existing != "overwrite":
+                raise UsageError(f"{option}: {out!r} exists; give --overwrite to replace it")
     path = Path(args.test_data or RUNS / data.scenario / "test.npz")
     if path.is_file():              # of the --scenario asked for, if one is
         _frames_file(path, "--test-data", getattr(args, "cfg__scenario", None))
@@ -247,6 +252,7 @@ def run_eval_depth(args) -> int:
     text = json.dumps({k: (round(v, 4) if isinstance(v, float) else v)
                        for k, v in results.items()})
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(text)
     print(text)
     return 0

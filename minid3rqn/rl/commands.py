@@ -90,7 +90,9 @@ def _claim(out: Path, args, cfg, t, depth_file: str) -> str:
     its checkpoint is of these settings. Returns "new", "resume", or "finished" (a run
     asked to resume that has nothing left to do; said on stderr)."""
     from .train import check_resume
-    if claim_run_folder(out, args.existing, "--out"):
+    inputs = {"--init-model": [t.init_model], "--depth-model": [depth_file],
+              "--teachers": getattr(cfg, "teachers", "").split("+")}
+    if claim_run_folder(out, args.existing, "--out", inputs=inputs):
         settings = {**flat_settings(as_dict(cfg)), "depth_model": depth_file}
         try:
             meta = read_metadata(out / "checkpoint.npz")
