@@ -6,10 +6,11 @@ sampled as 5-step windows, double-Q targets, a target net refreshed every 300 up
 By default a short run (18,000 transitions, 64 LSTM units, 1,501 updates; under 2
 minutes on one core) prints the learning curve every 2,000 transitions, measured on the
 training flights (epsilon-greedy). While epsilon falls, and for a while after, the
-flights last 9 to 13 steps of 50 (a random pilot's 11); then they get longer, to 21.6
-steps at 18,000 transitions, and 15% of them succeed (50 steps without a collision).
-Learning has only begun: the exercises' runs (40,000 transitions, epsilon falling over
-25,000) fly 0.695 of their 200 test flights (docs/exercises/README.md).
+flights last 9 to 13 steps of 50 (a random pilot's 11); then they get longer, to 20-22
+steps at 18,000 transitions, and 10-15% of them succeed (50 steps without a collision;
+the figures of two machines, which differ by CPU: docs/exercises/README.md). Learning
+has only begun: the exercises' runs (40,000 transitions, epsilon falling over 25,000)
+fly 0.62-0.70 of their 200 test flights.
 
 ``--full`` is 60,000 transitions with the paper's network, four updates per step of the
 16 flights: the run docs/results.md quotes under Table 5 (0.871 on GT depth, 2000

@@ -198,6 +198,8 @@ def check_output(path, option: str, folder: bool = False, suffix: str | None = N
                          f"the shipped models; write it elsewhere (e.g. under runs/)")
     if suffix and path.suffix != suffix:
         raise UsageError(f"{option}: expected a {suffix} file; got {str(path)!r}")
+    if any(len(part.encode()) > 255 for part in where.parts):
+        raise UsageError(f"{option}: {str(path)!r} has a name longer than 255 bytes")
     if path.exists():
         if path.is_dir() != folder:
             kind = "folder" if path.is_dir() else "file"

@@ -182,7 +182,7 @@ def test_records_without_world_counts_and_bad_files_are_named(tmp_path):
     with pytest.raises(ValueError, match="no evaluation records"):
         pool_records([])
     bad = tmp_path / "bad.jsonl"
-    bad.write_text('{"a": 1}\nnot json\n')
+    bad.write_text('{"scenario": "basic", "seed": 1}\nnot json\n')
     with pytest.raises(ValueError, match="line 2 is not a JSON record"):
         read_records([bad])
     with pytest.raises(FileNotFoundError, match="no such results file"):

@@ -578,3 +578,26 @@ def test_check_command(capsys):
     assert "NOT YET" in capsys.readouterr().out
     assert run_check(ns(exercise="all", file=str(SOLUTIONS))) == 0
     assert "8/8 exercises pass" in capsys.readouterr().out
+
+
+def test_student_code_failing_during_training_is_named_with_its_line(tmp_path):
+    """A reward that passes the check but raises later, in training: the run ends with one
+    message naming the student's file and line, not a traceback into the library."""
+    from minid3rqn.classroom.runner import run_exercise
+    late = write(tmp_path, "late.py", "import numpy as np\ncalls = [0]\n\n\n"   # the smoke
+                                      "def reward(d, collided):\n"                # budget flies 8
+                                      "    calls[0] += np.size(d) == 8\n"
+                                      "    if calls[0] > 4:\n"
+                                      "        raise ValueError('late trouble')\n"
+                                      "    return np.where(collided, -1.0, np.minimum(d, 3.0))\n")
+    with pytest.raises(SystemExit, match=r"late.py raised ValueError at line 8 during the run"):
+        run_exercise("reward", file=late, budget="smoke", out=tmp_path, progress=False)
+
+
+def test_a_file_that_is_not_utf8_is_the_students_problem(tmp_path):
+    """A file saved in another encoding: the check says so, not that the checker broke."""
+    path = tmp_path / "reward.py"
+    path.write_bytes(b"# caf\xe9\ndef reward(d, collided):\n    return 0.0\n")
+    report = EXERCISES["reward"].checker(path)
+    assert not report.passed and "is not UTF-8 text" in report.messages
+    assert "checker itself" not in report.messages

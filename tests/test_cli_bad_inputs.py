@@ -33,6 +33,7 @@ CASES = [
     ("fly --model nope.npz", "--model: Q-net 'nope.npz' not found"),
     ("fly --model {fx}/qnet.npz+", "--model: Q-net '' not found"),
     ("fly --model {fx}/nan.npz", "--model: '{fx}/nan.npz': weight"),
+    ("fly --model {fx}/qmissing.npz", "--model: '{fx}/qmissing.npz' is not a readable Q-net"),
     ("fly --model {fx}/depth.npz", "--model: '{fx}/depth.npz' is a depth model"),
     ("fly --model {fx}/trunc.npz", "--model: '{fx}/trunc.npz' is not a readable .npz"),
     ("fly --depth gt --flip-tta", "--flip-tta: averages the DispNet's disparity"),
@@ -49,6 +50,9 @@ CASES = [
     ("train-agent --seq-len 0", "--seq-len: expected a number >= 1"),
     ("train-agent --replay-capacity 10", "--replay-capacity: expected a number >= 64"),
     ("train-agent --set nope=1", "--set: expected NAME=VALUE"),
+    ("train-agent --smoke --set n_envs=64 --replay-capacity 64", "--replay-capacity: expected "
+                                                                 "at least 4 frames per flight"),
+    ("train-agent --set conv_channels=1.5,2,3", "--set conv_channels: expected three whole"),
     ("train-agent --set n_envs=abc", "--set n_envs: expected an integer"),
     ("train-agent --set actions=1,2,3", "--set actions: expected rows of (speed"),
     ("train-agent --set actions=2,0;2,x", "--set actions: expected numbers joined by ','"),
@@ -69,6 +73,8 @@ CASES = [
     ("train-agent --smoke --out {fx}/run", "--out: '{fx}/run' holds a run"),
     ("train-agent --smoke --hidden 8 --out {fx}/run --resume", "hidden 16 (now 8)"),
     ("train-agent --smoke --steps 64 --out {fx}/run --resume", "at 128 steps already"),
+    ("train-agent --smoke --out {fx}/drun --resume", "--resume: the checkpoint in '{fx}/drun' "
+                                                     "is not one of train-agent or distil"),
     ("train-agent --smoke --out {fx}/modelonly --resume", "--resume: '{fx}/modelonly' holds "
                                                           "no checkpoint.npz"),
     ("train-agent --smoke --out " + str(MODELS), "--out: '" + str(MODELS) + "' is inside"),
@@ -88,8 +94,8 @@ CASES = [
      "--depth-model: depth model 'nope.npz'"),
     ("distil --smoke --teachers {fx}/qnet.npz --out {fx}/afile", "--out: '{fx}/afile' is a"),
     ("distil --smoke --teachers {fx}/qnet.npz --out {fx}/run", "--out: '{fx}/run' holds a run"),
-    ("distil --smoke --teachers {fx}/qnet.npz --out {fx}/run --resume", "--resume: the "
-                                                                        "checkpoint in"),
+    ("distil --smoke --teachers {fx}/qnet.npz --out {fx}/run --resume", "--resume: the run in "
+                                                "'{fx}/run' was made by train-agent, not distil"),
     # evaluate
     ("evaluate", "the following arguments are required: policies"),
     ("evaluate nope.npz", "'nope.npz' is not a Q-net file"),
@@ -107,6 +113,9 @@ CASES = [
     ("evaluate reactive --depth pred --depth-model nope.npz", "--depth-model: depth model "
                                                               "'nope.npz'"),
     ("evaluate reactive --depth pred --depth-model {fx}/qnet.npz", "--depth-model: "),
+    ("evaluate {fx}/qmissing.npz", "'{fx}/qmissing.npz' is not a readable Q-net file"),
+    ("evaluate reactive --depth pred --depth-model {fx}/dnan.npz", "--depth-model: "
+                                                                   "'{fx}/dnan.npz': weight"),
     ("evaluate straight --json {fx}/adir.jsonl", "--json: '{fx}/adir.jsonl' is a folder"),
     ("evaluate straight --json {fx}/afile/x.jsonl", "--json: '{fx}/afile/x.jsonl' cannot"),
     ("evaluate straight --json {fx}/half.jsonl", "--json: '{fx}/half.jsonl': its last line"),
@@ -124,6 +133,8 @@ CASES = [
     ("pool", "the following arguments are required: files"),
     ("pool nope.jsonl", "no such results file: nope.jsonl"),
     ("pool {fx}/bad.jsonl", "{fx}/bad.jsonl line 1 is not a JSON record"),
+    ("pool {fx}/list.jsonl", "{fx}/list.jsonl line 1 is not a JSON object"),
+    ("pool {fx}/short.jsonl", "{fx}/short.jsonl line 1 has world counts that do not match"),
     ("pool {fx}/old.jsonl --where nokey", "--where: expected KEY=VALUE"),
     ("pool {fx}/old.jsonl --against x", "--against: expected KEY=VALUE"),
     ("pool {fx}/empty.jsonl", "no evaluation records to pool"),
@@ -155,9 +166,21 @@ CASES = [
     ("train-depth --dir {fx}/drun", "--dir: '{fx}/drun' holds a run"),
     ("train-depth --dir {fx}/drun --resume --lr 0.001", "lr 0.0005 (now 0.001)"),
     ("train-depth --dir {fx}/drun --resume --iterations 1", "at iteration 2 already"),
+    ("train-depth --data {fx}/frames.npz --test-data {fx}/frames.npz",
+     "--test-data: '{fx}/frames.npz' is the --data file"),
+    ("train-depth --data {fx}/two.npz --test-data {fx}/dframes/train.npz",
+     "--data: '{fx}/two.npz' holds no triplet"),
+    ("eval-depth --test-data {fx}/nodepth.npz", "--test-data: '{fx}/nodepth.npz' holds no "
+                                                "finite ground-truth depth"),
+    ("train-depth --dir {fx}/run --resume --data {fx}/frames.npz --test-data "
+     "{fx}/dframes/train.npz",
+     "--resume: '{fx}/run/checkpoint.npz' is not a train-depth checkpoint"),
     ("train-depth --dir {fx}/dframes", "frames 20 (now 5000)"),
     ("train-depth --dir " + str(MODELS), "--dir: '" + str(MODELS) + "' is inside"),
     # eval-depth
+    ("eval-depth --model {fx}/dnan.npz", "--model: '{fx}/dnan.npz': weight"),
+    ("eval-depth --model {fx}/dmissing.npz", "--model: '{fx}/dmissing.npz' is not a readable"),
+    ("eval-depth --model {fx}/dscale.npz", "--model: '{fx}/dscale.npz' records the scale 0.0"),
     ("eval-depth --model nope.npz", "--model: no file 'nope.npz'"),
     ("eval-depth --model {fx}/qnet.npz", "--model: '{fx}/qnet.npz' is not a depth model"),
     ("eval-depth --scenario moon", "--scenario: invalid choice: 'moon'"),
@@ -173,6 +196,7 @@ CASES = [
                                                                        "'{fx}/old.png' exists"),
     ("train-agent --smoke --out {fx}/run --overwrite --init-model {fx}/run/model.npz",
      "--init-model: '{fx}/run/model.npz' is a file of the run in '{fx}/run', which --overwrite"),
+    ("train-depth --init-from {fx}/dnan.npz", "--init-from: '{fx}/dnan.npz': weight"),
     ("train-depth --dir {fx}/drun --overwrite --init-from {fx}/drun/checkpoint.npz",
      "--init-from: '{fx}/drun/checkpoint.npz' is a file of the run"),
     ("eval-depth --test-data {fx}/frames.npz --pictures p.txt", "--pictures: expected a .png"),
@@ -221,6 +245,14 @@ def _make_files(fx: Path) -> None:
     arrays[first] = arrays[first].copy()
     arrays[first].flat[0] = np.nan
     save_npz(fx / "nan.npz", arrays, meta)
+    save_npz(fx / "qmissing.npz", dict(list(arrays.items())[1:]), meta)   # a weight gone
+    arrays, meta = load_npz(fx / "depth.npz")
+    save_npz(fx / "dmissing.npz", dict(list(arrays.items())[1:]), meta)
+    first = next(iter(arrays))
+    arrays[first] = arrays[first].copy()
+    arrays[first].flat[0] = np.inf
+    save_npz(fx / "dnan.npz", arrays, meta)
+    save_npz(fx / "dscale.npz", load_npz(fx / "depth.npz")[0], {**meta, "scale": 0.0})
     arrays, meta = load_npz(fx / "qnet.npz")
     meta["train_config"]["hfov_deg"] = 60.0                # a net of another camera
     save_npz(fx / "odd.npz", arrays, meta)
@@ -233,12 +265,19 @@ def _make_files(fx: Path) -> None:
     (fx / "old.png").write_bytes(b"not really a picture")
     (fx / "half.jsonl").write_text('{"a": 1}\n{"a": 2')
     (fx / "bad.jsonl").write_text("not json\n")
+    (fx / "list.jsonl").write_text("[1, 2]\n")
+    (fx / "short.jsonl").write_text('{"scenario": "basic", "seed": 1, "world_seeds": [1, 2], '
+                                    '"world_successes": [1], "world_flights": [2, 2]}\n')
     (fx / "old.jsonl").write_text('{"spec": "x", "scenario": "basic", "seed": 1}\n')
     (fx / "empty.jsonl").write_text("")
     (fx / "modelonly").mkdir()
     shutil.copy(fx / "qnet.npz", fx / "modelonly" / "model.npz")
     frames = collect_sequence(CollectConfig(frames=20, frames_per_flight=10),
                               fx / "frames.npz", progress=False)
+    arrays, meta = load_npz(fx / "frames.npz")
+    save_npz(fx / "two.npz", {k: v[:2] if k in ("rgb", "flight", "depth", "pose") else v
+                              for k, v in arrays.items()}, meta)
+    save_npz(fx / "nodepth.npz", {k: v for k, v in arrays.items() if k != "depth"}, meta)
     (fx / "dframes").mkdir()
     shutil.copy(fx / "frames.npz", fx / "dframes" / "train.npz")
     run = Run(TrainConfig(**SMOKE), fx / "run")           # a run checkpointed at 128 steps

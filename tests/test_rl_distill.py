@@ -215,7 +215,8 @@ def test_mirror_augmentation_needs_a_symmetric_action_table(tmp_path):
     teacher = str(tmp_path / "three.npz")
     from minid3rqn.nets.qnet import QNet, QNetConfig
     QNet(QNetConfig(n_actions=3, width=8), rng=0).save(
-        teacher, {"kind": "qnet", "qnet_config": QNetConfig(n_actions=3, width=8).to_dict()})
+        teacher, {"kind": "qnet", "qnet_config": QNetConfig(n_actions=3, width=8).to_dict(),
+                  "train_config": {"actions": table}})
     cfg = small_config(teachers=teacher, mirror_augment=True, train={"actions": table})
     with pytest.raises(ValueError, match="no mirror image"):
         distil(cfg, tmp_path / "run", progress=False)

@@ -172,8 +172,9 @@ def test_a_run_killed_while_saving_keeps_its_last_checkpoint(tmp_path):
     """)
     child = subprocess.Popen([sys.executable, "-c", code], env=ENV, stdout=subprocess.PIPE,
                              text=True)
-    while child.stdout.readline().strip() != "writing":
-        pass
+    for line in child.stdout:          # ends early (and the asserts below fail) if it dies
+        if line.strip() == "writing":
+            break
     child.send_signal(signal.SIGKILL)
     child.wait()
     assert len(list(out.glob("checkpoint.npz.*.tmp"))) == 1

@@ -333,13 +333,13 @@ COLUMNS = {
 
 def summary_table(exercise: str, out=OUT) -> str:
     """Every result.json of an exercise so far, one line each."""
-    rows = []
+    rows, skipped = [], []
     for path in sorted(Path(out, exercise).glob("*/result.json")):
         try:
-            rows.append(json.loads(path.read_text()))
+            rows.append((path, json.loads(path.read_text())))
         except (OSError, ValueError):
-            continue
-    if not rows:
+            skipped.append(path)
+    if not rows and not skipped:
         return f"(no runs of {exercise} yet)"
     columns = [("run", -30, lambda r: r["tag"]), ("budget", -7, lambda r: r["budget"])] + \
         COLUMNS.get(exercise, COLUMNS["agent"]) + \
@@ -349,11 +349,12 @@ def summary_table(exercise: str, out=OUT) -> str:
         return f"{text:<{-width}}" if width < 0 else f"{text:>{width}}"
 
     lines = [" ".join(cell(title, w) for title, w, _ in columns)]
-    for r in rows:
+    for path, r in rows:
         try:
             lines.append(" ".join(cell(f(r), w) for _, w, f in columns))
-        except KeyError:              # a result written by another version: skip it
-            continue
+        except (KeyError, TypeError, ValueError):   # not a result this table can show
+            skipped.append(path)
+    lines += [f"(left out: {path}, not a result of this exercise)" for path in skipped]
     caption = " (success, 95% CI, steps: on GT depth; pred: the same test flights on " \
         "predicted depth)" if exercise == "depth-errors" else ""
     return f"\nAll runs of '{exercise}' in {Path(out, exercise)}{caption}:\n" + "\n".join(lines)
@@ -381,7 +382,24 @@ def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "sm
                          f"(python -m minid3rqn check {ex.name}{again})")
     module = None if path is None else report.module
     named = path.stem if path is not None and path.name != ex.filename else None
-    if ex.trains == "depth":
-        return run_depth_exercise(ex, module, budget, seed, out, progress, named)
-    return run_agent_exercise(ex, module, report and report.summary, budget, variant, seed,
-                              out, flights, progress, named)
+    try:
+        if ex.trains == "depth":
+            return run_depth_exercise(ex, module, budget, seed, out, progress, named)
+        return run_agent_exercise(ex, module, report and report.summary, budget, variant,
+                                  seed, out, flights, progress, named)
+    except Exception as e:            # the student's code failed during the run: say where
+        line = _line_in(e, path)
+        if line is None:
+            raise
+        raise SystemExit(f"exercise {ex.name}: your {path.name} raised {type(e).__name__} at "
+                         f"line {line} during the run: {e}") from None
+
+
+def _line_in(error: Exception, path: Path | None) -> int | None:
+    """The last line of the file ``path`` in ``error``'s traceback, or None."""
+    tb, line = error.__traceback__, None
+    while tb is not None and path is not None:
+        if Path(tb.tb_frame.f_code.co_filename).resolve() == path.resolve():
+            line = tb.tb_lineno
+        tb = tb.tb_next
+    return line

@@ -163,7 +163,7 @@ def call(report: Report, what: str, fn, *args, hint: str | None = None, **kwargs
         report.fail(f"not written yet: {what} raised {describe(e, path)}",
                     hint="this part is yours to write: replace the `raise "
                          "NotImplementedError(...)` line by your code", stop=True)
-    except Exception as e:  # noqa: BLE001 - report anything the student's code raises
+    except BaseException as e:  # noqa: BLE001 - anything the student's code raises
         if isinstance(e, ValueError) and "truth value of an array" in str(e):
             hint = ("the code is called with arrays (one entry per flight): replace `if x:` / "
                     "`and` / `or` by np.where(...), np.logical_and(...), ...")
@@ -199,8 +199,12 @@ def load(path, report: Report):
     module = importlib.util.module_from_spec(spec)
     try:
         compile(path.read_text(), str(path), "exec")
+    except UnicodeDecodeError as e:
+        report.fail(f"Python cannot read {path.name}: byte {e.start} is not UTF-8 text",
+                    hint="save the file as UTF-8 (plain text) in your editor", stop=True)
     except SyntaxError as e:
-        report.fail(f"Python cannot read {path.name}: {e.msg} at line {e.lineno}"
+        report.fail(f"Python cannot read {path.name}: {e.msg}"
+                    + (f" at line {e.lineno}" if e.lineno else "")
                     + (f": {e.text.strip()}" if e.text else ""),
                     hint="look for a missing bracket, colon or a wrong indentation there",
                     stop=True)

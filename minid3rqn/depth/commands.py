@@ -24,7 +24,8 @@ from pathlib import Path
 
 from ..config import (UsageError, add_arguments, add_existing_option, as_dict, flat_settings,
                       from_args, setting_names)
-from ..io import MODELS, check_output, claim_run_folder, read_metadata
+from ..io import MODELS, check_output, claim_run_folder, load_npz, read_metadata
+from ..nets.module import reason
 from .data import CollectConfig, collect_sequence, held_out, load_sequence
 from .train import TrainConfig, check_resume, other_frames, train_depth
 
@@ -45,9 +46,12 @@ def _options(args: argparse.Namespace, cls, other=None) -> argparse.Namespace:
 
 
 # -- collect -----------------------------------------------------------------------------
-def _frames_file(path, option: str, scenario: str | None = None) -> None:
+def _frames_file(path, option: str, scenario: str | None = None, role: str = "test",
+                 pose: bool = False) -> None:
     """An existing file given as frames: one written by ``collect`` (of ``scenario``, if
-    given: the one the command is about); UsageError if not."""
+    given: the one the command is about) that can serve as training frames (``role``
+    "train": triplets; the poses too, with ``pose``) or held-out ones ("test": finite
+    ground-truth depth); UsageError if not."""
     import zipfile
 
     import numpy as np
@@ -60,7 +64,20 @@ def _frames_file(path, option: str, scenario: str | None = None) -> None:
         what = "is not a readable .npz file" if names is None else "holds no frames"
         raise UsageError(f"{option}: {str(path)!r} {what} (expected a file written by "
                          f"collect)")
-    filmed = (read_metadata(path) or {}).get("scenario")
+    try:                            # shapes, types and lengths that agree (Sequence)
+        seq = load_sequence(path)
+    except (KeyError, TypeError, ValueError) as e:
+        raise UsageError(f"{option}: {str(path)!r} {reason(e).removeprefix('Sequence: ')}") \
+            from None
+    if role == "test" and (seq.depth is None or not np.isfinite(seq.depth).all()):
+        raise UsageError(f"{option}: {str(path)!r} holds no finite ground-truth depth to "
+                         f"score against")
+    if role == "train" and not len(seq.triplet_indices()):
+        raise UsageError(f"{option}: {str(path)!r} holds no triplet (three consecutive frames "
+                         f"of one flight); collect longer flights")
+    if role == "train" and pose and seq.pose is None:
+        raise UsageError(f"{option}: {str(path)!r} records no poses, which gyro_yaw reads")
+    filmed = seq.meta.get("scenario") if isinstance(seq.meta, dict) else None
     if scenario and filmed and filmed != scenario:
         raise UsageError(f"{option}: {str(path)!r} holds frames of {filmed}, not {scenario}; "
                          f"give --scenario {filmed}")
@@ -120,22 +137,35 @@ def _check_init_from(path) -> None:
     if "dispnet" not in meta and not ("config" in meta and "iteration" in meta):
         raise UsageError(f"--init-from: {path!r} is neither a depth model nor a train-depth "
                          f"checkpoint")
+    from ..nets.module import check_finite
+    from .evaluate import DepthEstimator
+    try:                    # before any frame is collected: weights that can start a run
+        if "dispnet" in meta:
+            DepthEstimator.load(path)
+        else:
+            check_finite(load_npz(path)[0], path)
+    except ValueError as e:
+        raise UsageError(f"--init-from: {str(e).removeprefix('DepthEstimator.load: ')}") \
+            from None
 
 
 def _check_frames(args, cfg: TrainConfig, data: CollectConfig, run_dir: Path) -> list:
     """The frames a run reads: given files hold frames, or can be made there; the run's
     own files (in --dir) hold the frames of these settings, or (with --overwrite) are
     returned, to be deleted and collected anew."""
+    if args.data and args.test_data and Path(args.data).resolve() == Path(args.test_data).resolve():
+        raise UsageError(f"--test-data: {args.test_data!r} is the --data file; the held-out "
+                         f"frames must be other frames")
     stale = []
-    for option, given, default, want in (
-            ("--data", args.data, run_dir / "train.npz", data),
+    for option, given, default, want, role in (
+            ("--data", args.data, run_dir / "train.npz", data, "train"),
             ("--test-data", args.test_data, run_dir / "test.npz",
-             held_out(data, cfg.test_frames))):
+             held_out(data, cfg.test_frames), "test")):
         path = Path(given or default)
         if not path.is_file():
             check_output(path, option, suffix=".npz")
             continue
-        _frames_file(path, option if given else "--dir", data.scenario)
+        _frames_file(path, option if given else "--dir", data.scenario, role, cfg.gyro_yaw)
         problem = None if given else other_frames(path, want)
         if problem and args.existing != "overwrite":
             raise UsageError(f"--dir: {problem}; give --overwrite to collect them anew, or "

@@ -18,6 +18,7 @@ R_pred^T R_gt in degrees.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ import numpy as np
 from .. import autograd as ag
 from ..io import load_npz, save_npz
 from ..nets.dispnet import DispNet
+from ..nets.module import check_finite, reason
 from ..nets.fast import DispNetInference
 from ..world.geometry import relative_transform
 from .data import Sequence
@@ -70,16 +72,26 @@ class DepthEstimator:
 
     @classmethod
     def load(cls, path) -> "DepthEstimator":
-        """A model file written by ``save``."""
+        """A model file written by ``save``; ValueError naming the file if it is not one,
+        or if a weight or the scale is not finite."""
         arrays, meta = load_npz(path)
-        if not meta or "dispnet" not in meta:
+        if not isinstance(meta, dict) or "dispnet" not in meta:
             raise ValueError(f"DepthEstimator.load: {str(path)!r} is not a depth model file "
                              f"(no 'dispnet' metadata); write one with train-depth")
-        c = meta["dispnet"]
-        net = DispNet(tuple(c["encoder"]), tuple(c["decoder"]), c["n_scales"],
-                      c["disp_scale"], c["min_disp"])
-        net.load_state_dict(arrays)
-        return cls(net, meta.get("scale", 1.0), meta)
+        check_finite(arrays, path)
+        try:
+            c = meta["dispnet"]
+            net = DispNet(tuple(c["encoder"]), tuple(c["decoder"]), c["n_scales"],
+                          c["disp_scale"], c["min_disp"])
+            net.load_state_dict(arrays)
+            scale = float(meta.get("scale", 1.0))
+        except (KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"DepthEstimator.load: {str(path)!r} is not a readable depth "
+                             f"model: {reason(e)}") from None
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"DepthEstimator.load: {str(path)!r} records the scale {scale}; "
+                             f"expected a number > 0")
+        return cls(net, scale, meta)
 
     # -- inference -------------------------------------------------------------------
     def _frames(self, rgb) -> tuple[np.ndarray, bool]:

@@ -296,6 +296,9 @@ def check_resume(meta: dict, settings: dict, path) -> None:
     at ``path`` with metadata ``meta``: every setting the same but those of
     MAY_CHANGE_ON_RESUME, and no fewer iterations than it has done. The message names
     each differing setting with both values."""
+    if not (isinstance(meta, dict) and isinstance(meta.get("iteration"), int)
+            and isinstance(meta.get("config"), dict)):
+        raise ValueError(f"resume: {str(path)!r} is not a train-depth checkpoint")
     saved = {**flat_settings(meta["config"]), **meta.get("settings", {})}
     changed = changed_settings(saved, settings, MAY_CHANGE_ON_RESUME)
     if changed:

@@ -113,6 +113,10 @@ def _claim(out: Path, args, cfg, t, depth_file: str) -> str:
 def _trained(run, command: str, depth_model, t0: float, **extra) -> int:
     from .models import save_trained
     model = save_trained(run, command, depth_model, time.time() - t0, **extra)
+    if run.agent.updates == 0:      # e.g. --learning-starts beyond --steps: said, not silent
+        print(f"warning: the run made no update in {run.steps} transitions (updates start "
+              f"after --learning-starts {run.cfg.learning_starts}): {model} is untrained; "
+              f"--resume with more --steps trains it", file=sys.stderr)
     print(json.dumps({"model": str(model), "steps": run.steps, "updates": run.agent.updates,
                       "last": run.curve[-1] if run.curve else {}}))
     return 0
@@ -250,6 +254,13 @@ def run_fly(args) -> int:
     depth = cfg.depth
     depth_model = shipped_depth_model(cfg.scenario) if depth == "pred" else None
     est = _estimator(depth, depth_model, cfg.scenario, cfg.flip_tta, option="--scenario")
+    model = "+".join(parts)
+    try:                                 # read before flying: a broken record is said
+        recorded = recorded_result(model, cfg.scenario, depth, mirror=cfg.mirror,
+                                   flip_tta=depth == "pred" and cfg.flip_tta)
+    except ValueError as e:
+        recorded = None
+        print(f"note: {e}; its recorded results are not quoted", file=sys.stderr)
     out = fly(policies, est, cfg.scenario, seed, cfg.flights, cfg.gif, mirror=cfg.mirror)
     print(json.dumps(out))
     by_world = "" if out["ci95_by_world"] is None else \
@@ -258,9 +269,6 @@ def run_fly(args) -> int:
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
           f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}{by_world}) on {depth} depth; "
           f"GIF: {out['gif']}", file=sys.stderr)
-    model = "+".join(parts)
-    recorded = recorded_result(model, cfg.scenario, depth, mirror=cfg.mirror,
-                               flip_tta=depth == "pred" and cfg.flip_tta)
     if recorded:
         print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
               f"result here: {recorded_text(recorded)}. See "

@@ -231,14 +231,22 @@ def recorded_result(model, scenario: str, depth: str, mirror: bool = False,
                     flip_tta: bool = False) -> dict | None:
     """The largest evaluation of ``scenario`` on ``depth`` depth recorded in the JSON beside
     a model file (its ``evaluations``), flown as asked: with the mirror image and the
-    DispNet's flip or without (a row without those keys was flown without them)."""
+    DispNet's flip or without (a row without those keys was flown without them).
+    ValueError if that JSON is not such a record."""
     path = Path(model).with_suffix(".json")
     if not path.is_file():
         return None
-    rows = [r for r in json.loads(path.read_text()).get("evaluations", [])
-            if r.get("scenario") == scenario and r.get("depth") == depth
-            and r.get("mirror", False) == mirror and r.get("flip_tta", False) == flip_tta]
-    return max(rows, key=lambda r: r["flights"]) if rows else None
+    try:
+        rows = [r for r in json.loads(path.read_text()).get("evaluations", [])
+                if r.get("scenario") == scenario and r.get("depth") == depth
+                and r.get("mirror", False) == mirror and r.get("flip_tta", False) == flip_tta]
+        row = max(rows, key=lambda r: r["flights"]) if rows else None
+        if row is not None:
+            recorded_text(row)
+    except (AttributeError, KeyError, TypeError, ValueError, IndexError):
+        raise ValueError(f"{path.name} beside the model is not a readable record of its "
+                         f"evaluations") from None
+    return row
 
 
 def recorded_text(row: dict) -> str:

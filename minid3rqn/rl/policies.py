@@ -160,16 +160,27 @@ class QNetPolicy(Policy):
     def load(cls, path, name: str | None = None) -> "QNetPolicy":
         """A Q-net file; its metadata (how it was trained) is kept as ``meta``."""
         from ..io import load_npz
-        from ..nets.module import check_finite
+        from ..nets.module import check_finite, reason
         arrays, meta = load_npz(path)
-        if "qnet_config" not in (meta or {}):
-            what = "a depth model" if "disp" in " ".join(arrays) or (meta or {}).get("config") \
+        meta = meta if isinstance(meta, dict) else {}
+        if "qnet_config" not in meta:
+            what = "a depth model" if "disp" in " ".join(arrays) or meta.get("config") \
                 else "no Q-net"
             raise ValueError(f"{str(path)!r} is {what}, not a Q-net file (expected a model "
                              f"written by train-agent or distil)")
         check_finite(arrays, path)
-        net = QNet(QNetConfig(**meta["qnet_config"]), rng=0)
-        net.load_state_dict(arrays)
+        try:                      # the net, and the action table and camera it flies with
+            net = QNet(QNetConfig(**meta["qnet_config"]), rng=0)
+            net.load_state_dict(arrays)
+            actions, _ = trained_actions(meta), trained_camera(meta)
+            if actions.shape != (net.config.n_actions, 2) or not np.isfinite(actions).all():
+                raise ValueError(f"its action table {actions.tolist()} is not "
+                                 f"{net.config.n_actions} rows of (speed, yaw rate)")
+            if not isinstance(meta.get("steps", 0), int):
+                raise ValueError(f"its step count {meta['steps']!r} is not a number")
+        except (AttributeError, KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"{str(path)!r} is not a readable Q-net file: {reason(e)}") \
+                from None
         pol = cls(net, name)
         pol.meta = meta
         return pol

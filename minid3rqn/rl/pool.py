@@ -147,19 +147,46 @@ def against_conditions(where: list[str], against: list[str]) -> list[str]:
     return [c for c in where if c.partition("=")[0] not in replaced] + list(against)
 
 
+def _record_problem(r) -> str | None:
+    """What makes ``r`` not an evaluation record that can be pooled, or None."""
+    if not isinstance(r, dict):
+        return "is not a JSON object"
+    if not isinstance(r.get("scenario"), str):
+        return "names no scenario"
+    lists = [r.get(k) for k in ("world_seeds", "world_successes", "world_flights")]
+    if lists[0] is None:
+        return None                      # an older record: world_counts says so
+    counts = lists[1:]
+    if not all(isinstance(x, list) and len(x) == len(lists[0]) for x in lists) or not all(
+            isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2 ** 40
+            for x in counts for v in x) or any(y > m or m < 1 for y, m in zip(*counts)):
+        return ("has world counts that do not match (world_seeds, world_successes and "
+                "world_flights: lists of one length, 0 <= successes <= flights, flights >= 1)")
+    return None
+
+
 def read_records(paths) -> list[dict]:
     records = []
     for path in paths:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"pool: no such results file: {path}")
-        for n, line in enumerate(path.read_text().splitlines(), 1):
+        try:
+            lines = path.read_text().splitlines()
+        except UnicodeDecodeError:
+            raise ValueError(f"pool: {path} is not a text file (evaluate --json writes "
+                             f"JSON lines)") from None
+        for n, line in enumerate(lines, 1):
             if line.strip():
                 try:
-                    records.append(json.loads(line))
+                    record = json.loads(line)
                 except json.JSONDecodeError as e:
                     raise ValueError(f"pool: {path} line {n} is not a JSON record "
                                      f"(evaluate --json writes one per line): {e}") from None
+                problem = _record_problem(record)
+                if problem:
+                    raise ValueError(f"pool: {path} line {n} {problem}")
+                records.append(record)
     return records
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import (as_dict, at_least, between, changed_settings, flat_settings,
+from ..config import (ConfigError, as_dict, at_least, between, changed_settings, flat_settings,
                       positive, setting, validate)
 from ..io import RunStopped, StopRequest, load_npz, save_npz
 from ..nets.qnet import QNetConfig
@@ -45,7 +45,8 @@ SMOKE = dict(steps=128, learning_starts=64, n_envs=8, log_every=64, checkpoint_e
 
 
 def _conv_channels(v):
-    return None if len(v) == 3 and all(c >= 1 for c in v) else "three numbers >= 1"
+    return None if len(v) == 3 and all(isinstance(c, int) and c >= 1 for c in v) \
+        else "three whole numbers >= 1"
 
 
 def _action_table(v):
@@ -113,6 +114,9 @@ class TrainConfig:
         if isinstance(self.actions, np.ndarray):
             self.actions = self.actions.tolist()
         validate(self)
+        if self.replay_capacity < 4 * self.n_envs:    # each flight's stream holds 4 frames
+            raise ConfigError("replay_capacity", self.replay_capacity,
+                              f"at least 4 frames per flight ({4 * self.n_envs})")
 
     def window(self) -> int:
         """The replay windows' length: ``seq_len``, else 5 (recurrent) or 1."""
@@ -281,7 +285,14 @@ def check_resume(meta: dict, settings: dict, where) -> None:
     with metadata ``meta`` (in folder ``where``): every setting the same but those of
     MAY_CHANGE_ON_RESUME, and no fewer steps than it has done. The message names each
     differing setting with both values."""
+    if not (isinstance(meta, dict) and isinstance(meta.get("steps"), int)
+            and isinstance(meta.get("settings") or meta.get("config"), dict)):
+        raise ValueError(f"resume: the checkpoint in {str(where)!r} is not one of train-agent "
+                         f"or distil")
     saved = meta.get("settings") or flat_settings(meta["config"])
+    made, now = (("distil" if "teachers" in s else "train-agent") for s in (saved, settings))
+    if made != now:
+        raise ValueError(f"resume: the run in {str(where)!r} was made by {made}, not {now}")
     changed = changed_settings(saved, settings, MAY_CHANGE_ON_RESUME)
     if changed:
         raise ValueError(f"resume: the checkpoint in {str(where)!r} was made with other "
