@@ -196,10 +196,10 @@ def test_against_keeps_the_where_conditions_it_does_not_name():
 
 def test_where_takes_a_pattern_or_any_of_several_values():
     from minid3rqn.rl.pool import _matches
-    r = {"seed": 24680, "spec": "runs/e37_twin/seed7_s7/model.npz"}
-    assert _matches(r, ["seed=24680", "spec=runs/e37_twin/*"])
+    r = {"seed": 24680, "spec": "runs/nets/seed7_s7/model.npz"}
+    assert _matches(r, ["seed=24680", "spec=runs/nets/*"])
     assert _matches(r, ["seed=12345,24680,31415"]) and not _matches(r, ["seed=12345,31415"])
-    assert _matches(r, ["spec=minid3rqn/*,runs/e37*"]) and not _matches(r, ["seed=2468"])
+    assert _matches(r, ["spec=minid3rqn/*,runs/ne*"]) and not _matches(r, ["seed=2468"])
     assert not _matches(r, ["scenario=basic"])            # a key the record lacks
 
 
