@@ -15,7 +15,7 @@ import sys
 
 from .allocator import keep_freed_memory
 from .config import UsageError, shell_command
-from .io import RunStopped
+from .io import DamagedCheckpoint, RunStopped
 
 # command name -> (module, one-line help). Each module defines add_arguments(parser)
 # and run(args) -> int for its command (named ``cli_<command>`` with dashes -> _).
@@ -97,7 +97,7 @@ def main(argv=None) -> int:
     name = f"{parser.prog} {args.command}"
     try:
         return int(_hook(args._module, args._name, "run")(args) or 0)
-    except UsageError as e:    # a bad input: one line naming the option, no traceback
+    except (UsageError, DamagedCheckpoint) as e:   # a bad input: one line, no traceback
         print(f"{name}: {e}", file=sys.stderr)
         return 2
     except RunStopped as e:    # Ctrl-C in a training loop: its checkpoint is saved

@@ -16,6 +16,7 @@ import sys
 import tempfile
 import threading
 import zipfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -264,6 +265,27 @@ def claim_run_folder(folder, existing: str | None, option: str,
         raise UsageError(f"--resume: {str(folder)!r} holds no checkpoint.npz to continue "
                          f"from; give --overwrite to start the run afresh")
     return True
+
+
+def reason(error: Exception) -> str:
+    """Why a file could not be read, in words (a KeyError names what is missing)."""
+    text = str(error.args[0]) if error.args else type(error).__name__
+    return f"no {text!r} in it" if isinstance(error, KeyError) and " " not in text else text
+
+
+class DamagedCheckpoint(ValueError):
+    """A checkpoint that ``--resume`` cannot continue; the CLI prints it as one line."""
+
+
+@contextmanager
+def reading_checkpoint(path):
+    """Around restoring a run from the checkpoint ``path``: an array or a value that is
+    missing or does not fit becomes a ``DamagedCheckpoint`` naming the file."""
+    try:
+        yield
+    except (AttributeError, KeyError, TypeError, ValueError) as e:
+        raise DamagedCheckpoint(f"--resume: {str(path)!r} cannot be continued ({reason(e)}); "
+                                f"give --overwrite to start the run afresh") from None
 
 
 # -- Ctrl-C in a training loop ----------------------------------------------------------

@@ -75,6 +75,8 @@ CASES = [
     ("train-agent --smoke --steps 64 --out {fx}/run --resume", "at 128 steps already"),
     ("train-agent --smoke --out {fx}/drun --resume", "--resume: the checkpoint in '{fx}/drun' "
                                                      "is not one of train-agent or distil"),
+    ("train-agent --smoke --out {fx}/damaged --resume", "--resume: '{fx}/damaged/checkpoint.npz' "
+                                                        "cannot be continued"),
     ("train-agent --smoke --out {fx}/modelonly --resume", "--resume: '{fx}/modelonly' holds "
                                                           "no checkpoint.npz"),
     ("train-agent --smoke --out " + str(MODELS), "--out: '" + str(MODELS) + "' is inside"),
@@ -284,6 +286,9 @@ def _make_files(fx: Path) -> None:
     run.start()
     run.steps = 128
     run.save_checkpoint()
+    shutil.copytree(fx / "run", fx / "damaged")             # its checkpoint missing an array
+    arrays, meta = load_npz(fx / "damaged" / "checkpoint.npz")
+    save_npz(fx / "damaged" / "checkpoint.npz", dict(list(arrays.items())[1:]), meta)
     trainer = Trainer(frames, DepthConfig(), checkpoint=fx / "drun" / "checkpoint.npz",
                       settings={"data": str((fx / "drun" / "train.npz").resolve())})
     trainer.iteration = 2                                  # a depth run at iteration 2

@@ -24,8 +24,7 @@ from pathlib import Path
 
 from ..config import (UsageError, add_arguments, add_existing_option, as_dict, flat_settings,
                       from_args, setting_names)
-from ..io import MODELS, check_output, claim_run_folder, load_npz, read_metadata
-from ..nets.module import reason
+from ..io import MODELS, check_output, claim_run_folder, load_npz, read_metadata, reason
 from .data import CollectConfig, collect_sequence, held_out, load_sequence
 from .train import TrainConfig, check_resume, other_frames, train_depth
 

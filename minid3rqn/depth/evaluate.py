@@ -26,7 +26,8 @@ import numpy as np
 from .. import autograd as ag
 from ..io import load_npz, save_npz
 from ..nets.dispnet import DispNet
-from ..nets.module import check_finite, reason
+from ..io import reason
+from ..nets.module import check_finite
 from ..nets.fast import DispNetInference
 from ..world.geometry import relative_transform
 from .data import Sequence

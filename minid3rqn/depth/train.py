@@ -42,7 +42,8 @@ from .. import autograd as ag
 from ..autograd.optim import Adam
 from ..config import (as_dict, at_least, changed_settings, command_line, flat_settings,
                       positive, setting, shell_command, validate)
-from ..io import RunStopped, StopRequest, load_npz, machine, read_metadata, save_npz
+from ..io import (RunStopped, StopRequest, load_npz, machine, read_metadata, reading_checkpoint,
+                  save_npz)
 from ..nets.dispnet import DispNet
 from ..nets.posenet import PoseNet
 from ..world.geometry import relative_transform
@@ -268,17 +269,18 @@ class Trainer:
 
     def load_checkpoint(self, path) -> None:
         """Continue from the checkpoint at ``path`` (``check_resume``: ValueError if it
-        was made with other settings)."""
+        was made with other settings; ``DamagedCheckpoint`` if its contents do not fit)."""
         arrays, meta = load_npz(path)
         check_resume(meta, self.settings, path)
         pick = lambda prefix: {k[len(prefix):]: v for k, v in arrays.items()
                                if k.startswith(prefix)}
-        self.disp.load_state_dict(pick("disp."))
-        self.pose.load_state_dict(pick("pose."))
-        self.opt.load_state_dict(pick("opt."))
-        self.rng.bit_generator.state = meta["rng"]
-        self.iteration = int(meta["iteration"])
-        self.history = list(meta["history"])
+        with reading_checkpoint(path):
+            self.disp.load_state_dict(pick("disp."))
+            self.pose.load_state_dict(pick("pose."))
+            self.opt.load_state_dict(pick("opt."))
+            self.rng.bit_generator.state = meta["rng"]
+            self.iteration = int(meta["iteration"])
+            self.history = list(meta["history"])
 
     # -- the metric scale from the known flight speed ----------------------------------
     def speed_scale(self, max_triplets: int = 400) -> float:

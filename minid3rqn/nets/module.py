@@ -23,12 +23,6 @@ def check_finite(arrays: dict[str, np.ndarray], path) -> None:
                              f"with non-finite weights cannot fly")
 
 
-def reason(error: Exception) -> str:
-    """Why a model file could not be read, in words (a KeyError names what is missing)."""
-    text = str(error.args[0]) if error.args else type(error).__name__
-    return f"no {text!r} in it" if isinstance(error, KeyError) and " " not in text else text
-
-
 class Module:
     def __call__(self, *args, **kwargs):
         return self.forward(*args, **kwargs)

@@ -100,8 +100,11 @@ def _claim(out: Path, args, cfg, t, depth_file: str) -> str:
         except ValueError as e:
             raise UsageError(f"--resume: {str(e).removeprefix('resume: ')}") from None
         model = out / "model.npz"
-        if meta["steps"] >= t.steps and model.is_file() and "command" in (
-                read_metadata(model) or {}):
+        try:                             # a model file cut short is written anew
+            finished = model.is_file() and "command" in (read_metadata(model) or {})
+        except ValueError:
+            finished = False
+        if meta["steps"] >= t.steps and finished:
             print(f"the run in {str(out)!r} has finished ({meta['steps']} of {t.steps} "
                   f"steps); nothing to do (--resume with more --steps trains it on)",
                   file=sys.stderr)

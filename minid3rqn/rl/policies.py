@@ -160,7 +160,8 @@ class QNetPolicy(Policy):
     def load(cls, path, name: str | None = None) -> "QNetPolicy":
         """A Q-net file; its metadata (how it was trained) is kept as ``meta``."""
         from ..io import load_npz
-        from ..nets.module import check_finite, reason
+        from ..io import reason
+        from ..nets.module import check_finite
         arrays, meta = load_npz(path)
         meta = meta if isinstance(meta, dict) else {}
         if "qnet_config" not in meta:

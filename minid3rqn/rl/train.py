@@ -29,7 +29,7 @@ import numpy as np
 
 from ..config import (ConfigError, as_dict, at_least, between, changed_settings, flat_settings,
                       positive, setting, validate)
-from ..io import RunStopped, StopRequest, load_npz, save_npz
+from ..io import RunStopped, StopRequest, load_npz, reading_checkpoint, save_npz
 from ..nets.qnet import QNetConfig
 from .agent import Agent, AgentConfig, FrameStacker
 from .flights import Flights, FlightsConfig
@@ -256,7 +256,7 @@ class Run:
 
     def load_checkpoint(self) -> None:
         """Continue from ``out_dir/checkpoint.npz`` (``check_resume``: ValueError if it was
-        made with other settings)."""
+        made with other settings; ``DamagedCheckpoint`` if its contents do not fit)."""
         from ..autograd import Tensor
         arrays, meta = load_npz(self.out / "checkpoint.npz")
         check_resume(meta, self.settings, self.out)
@@ -264,20 +264,22 @@ class Run:
         def part(prefix):
             return {k[len(prefix) + 1:]: v for k, v in arrays.items()
                     if k.startswith(prefix + ".")}
-        self.agent.load_state_dict(part("agent"))
-        self.replay.load_state_dict(part("replay"))
-        self.flights.load_state_dict(part("flights"), meta["flights_meta"])
-        for name, obj in self.extra.items():
-            obj.load_state_dict(part(name))
-        self.stacker.buf[...] = arrays["stacker"]
-        self.returns[...], self.lengths[...] = arrays["returns"], arrays["lengths"]
-        if "state_h" in arrays:
-            self.state = (Tensor(arrays["state_h"].copy()), Tensor(arrays["state_c"].copy()))
-        self.steps, self.episodes = meta["steps"], meta["episodes"]
-        self.update_credit, self.curve, self.notes = (meta["update_credit"], meta["curve"],
-                                                      meta["notes"])
-        self.rng.bit_generator.state = json.loads(meta["rng"])
-        self.replay.rng.bit_generator.state = json.loads(meta["replay_rng"])
+        with reading_checkpoint(self.out / "checkpoint.npz"):
+            self.agent.load_state_dict(part("agent"))
+            self.replay.load_state_dict(part("replay"))
+            self.flights.load_state_dict(part("flights"), meta["flights_meta"])
+            for name, obj in self.extra.items():
+                obj.load_state_dict(part(name))
+            self.stacker.buf[...] = arrays["stacker"]
+            self.returns[...], self.lengths[...] = arrays["returns"], arrays["lengths"]
+            if "state_h" in arrays:
+                self.state = (Tensor(arrays["state_h"].copy()),
+                              Tensor(arrays["state_c"].copy()))
+            self.steps, self.episodes = meta["steps"], meta["episodes"]
+            self.update_credit, self.curve, self.notes = (meta["update_credit"],
+                                                          meta["curve"], meta["notes"])
+            self.rng.bit_generator.state = json.loads(meta["rng"])
+            self.replay.rng.bit_generator.state = json.loads(meta["replay_rng"])
 
 
 def check_resume(meta: dict, settings: dict, where) -> None:
