@@ -103,8 +103,8 @@ class TrainConfig:
     checkpoint_every: int = setting(10_000, "transitions between checkpoints",
                                     source="run", check=at_least(1), cli="more")
     # -- what the net is trained with, recorded in its file (evaluate and fly use it)
-    actions: list | None = setting(None, "the action table, (speed, yaw rate) rows "
-                                         "(none: the paper's Table 3)", check=_action_table)
+    actions: list | None = setting(None, "the action table: speed,yaw-rate rows joined by "
+                                         "';' (none: the paper's Table 3)", check=_action_table)
     hfov_deg: float = setting(90.0, "the camera's horizontal field of view (degrees)",
                               check=lambda v: None if 0 < v < 180 else "a number in (0, 180)")
     conv_channels: list | None = setting(None, "out channels of the three conv layers "
