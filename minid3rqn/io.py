@@ -253,11 +253,13 @@ def claim_run_folder(folder, existing: str | None, option: str,
         raise UsageError(f"{option}: {str(folder)!r} holds a run ({', '.join(held)}); give "
                          f"--resume to continue it or --overwrite to start it afresh")
     if existing == "overwrite":
-        for name, paths in (inputs or {}).items():
-            for path in [p for p in paths if p and Path(p).resolve().parent == folder.resolve()
-                         and Path(p).name in outputs]:
-                raise UsageError(f"{name}: {str(path)!r} is a file of the run in {str(folder)!r}, "
-                                 f"which --overwrite would delete; copy it elsewhere first")
+        deleted = {(folder / name).resolve() for name in outputs}
+        read = [(name, p) for name, paths in (inputs or {}).items() for p in paths
+                if p and Path(p).resolve() in deleted]
+        if read:
+            name, path = read[0]
+            raise UsageError(f"{name}: {str(path)!r} is a file of the run in {str(folder)!r}, "
+                             f"which --overwrite would delete; copy it elsewhere first")
         for name in outputs:
             (folder / name).unlink(missing_ok=True)
         return False

@@ -51,7 +51,7 @@ class CollectConfig:
                             choices=SCENARIOS)
     frames: int = setting(5000, "frames to collect", source="paper", check=at_least(3))
     seed: int = setting(0, "flight f flies in the world of seed x 100003 + f", source="run",
-                      check=at_least(0))
+                        check=at_least(0))
     late_turns: float = setting(0.0, "share of the pilot's segments flown straight at "
                                      "obstacles, swerving late (0: the careful pilot)",
                                 source="ours", check=between(0.0, 1.0))

@@ -319,7 +319,7 @@ class EvalConfig:
     scenario: str = setting("basic", "the test worlds", source="run",
                             choices=("basic", "channel", "intersections", "corners"))
     seed: int = setting(12345, "the test worlds' seed", source="run",
-                      check=at_least(0))
+                        check=at_least(0))
     depth: str = setting("gt", "what the policies read: GT depth or the DispNet's",
                          source="run", choices=("gt", "pred"))
     depth_model: str = setting("", "DispNet .npz for --depth pred (empty: the shipped one "
