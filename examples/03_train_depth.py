@@ -10,8 +10,12 @@
    ground-truth depth is stored beside it, for the scorecard only).
 2. DispNet + PoseNet train on triplets (previous, target, next): warp the neighbours
    into the target with the predicted depth and motion, compare the pixels.
-3. Every few hundred iterations the example scores the depth against ground truth
-   (abs rel, delta < 1.25) and adds a row RGB | predicted | GT to ``emerging.png``.
+3. Before training and every few hundred iterations the example scores the depth against
+   ground truth (abs rel, delta < 1.25) and adds a row RGB | predicted | GT to
+   ``emerging.png``. Most of the gain comes in the first 200 iterations (abs rel about
+   0.95 -> 0.5, delta 0.21 -> 0.34, seed 0): the noise becomes the near floor and the
+   wall on the left. After that, at this budget, scores and picture move back and forth
+   by a little (the far end of the view starts to show around 600 iterations).
 
     python examples/03_train_depth.py [--out runs/examples/03_train_depth]
     python examples/03_train_depth.py --smoke    # seconds: tiny run, checks it works
@@ -102,10 +106,12 @@ def main() -> None:
     def report(tr, row):
         est = DepthEstimator(tr.disp, 1.0)
         r = evaluate(est, test)
-        print(f"   it {row['iteration']:5d}  loss {row['loss']:.4f}  abs rel {r['abs_rel']:.3f}"
+        loss = f"loss {row['loss']:.4f}" if "loss" in row else "(untrained) "
+        print(f"   it {row['iteration']:5d}  {loss}  abs rel {r['abs_rel']:.3f}"
               f"  delta<1.25 {r['a1']:.3f}")
         rows.append(est.predict(shown[0])[0])
 
+    report(trainer, {"iteration": 0})
     trainer.run(progress=False, callback=report)
 
     n = len(rows)

@@ -30,8 +30,9 @@ depth (docs/results.md):
 
     python examples/04_train_d3rqn.py [--full | --smoke] [--out runs/examples/04_train_d3rqn]
 
-The learning curve (CSV + PNG) and the model land in the --out folder; ``--smoke`` runs a
-few hundred steps with a tiny network (seconds).
+The learning curve (CSV + PNG) and the model land in the --out folder (the run's
+checkpoint, which holds the whole replay, is removed); ``--smoke`` runs a few hundred
+steps with a tiny network (seconds).
 """
 import argparse
 from pathlib import Path
@@ -55,6 +56,7 @@ def main():
     print(f"training {cfg.variant}: {cfg.steps} transitions, {cfg.n_envs} flights at "
           f"once, window {cfg.window()}, batch {cfg.batch_size}, gamma {cfg.agent.gamma}")
     run = train(cfg, Path(args.out), progress=False)
+    (Path(args.out) / "checkpoint.npz").unlink(missing_ok=True)    # the replay: 64-330 MB
     print(f"{'transitions':>11} {'updates':>8} {'epsilon':>8} {'steps/50':>9} {'success':>8} "
           f"{'loss':>8}")
     for row in run.curve:

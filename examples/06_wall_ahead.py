@@ -162,7 +162,7 @@ def main():
     est = DepthEstimator.load(args.model)
     worlds = list(flights(6 if args.smoke else args.worlds, args.seed))
     cam, altitude = Camera(), worlds[0][0].altitude
-    lowest_row = (cam.height - 0.5 - cam.cy) / cam.fy        # y_n of the image's lower edge
+    lowest_row = (cam.height - 1 - cam.cy) / cam.fy          # y_n of the lowest row (centre)
     print(f"{len(worlds)} late-turning flights, {sum(len(q) for _, q in worlds)} frames "
           f"(seed {args.seed}). Camera at {altitude:.1f} m: the lowest image row sees the "
           f"floor at {altitude / lowest_row:.2f} m.")

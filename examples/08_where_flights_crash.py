@@ -112,6 +112,8 @@ def main(argv=None):
 
     policy = load_policy(args.policy, 0)
     _, camera = actions_and_camera(policy)
+    print(f"{args.flights} flights per world on {'GT' if args.depth == 'gt' else 'predicted'} "
+          f"depth, evaluation seed {args.seed}")
     for scenario in args.scenarios:
         est = (load_depth_estimator(MODELS / f"depth_{scenario}.npz")
                if args.depth == "pred" else None)

@@ -74,6 +74,11 @@ def save_npz(path, arrays: dict[str, np.ndarray], metadata: dict | None = None) 
     return path
 
 
+def _npz_problem(error: Exception) -> str:
+    """NumPy's reason a file is no .npz, without its advice to unpickle a file."""
+    return "it is not an .npz file" if "pickle" in str(error) else str(error)
+
+
 def load_npz(path) -> tuple[dict[str, np.ndarray], dict | None]:
     """Read ``path`` written by ``save_npz``: (arrays, metadata or None)."""
     path = Path(path)
@@ -87,7 +92,7 @@ def load_npz(path) -> tuple[dict[str, np.ndarray], dict | None]:
         return arrays, (json.loads(str(meta)) if meta is not None else None)
     except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as e:
         raise ValueError(f"{str(path)!r} is not a readable .npz file (truncated, or not "
-                         f"written by minid3rqn): {e}") from None
+                         f"written by minid3rqn): {_npz_problem(e)}") from None
 
 
 def read_metadata(path) -> dict | None:
@@ -102,7 +107,7 @@ def read_metadata(path) -> dict | None:
             return json.loads(str(data["__metadata__"]))
     except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as e:
         raise ValueError(f"{str(path)!r} is not a readable .npz file (truncated, or not "
-                         f"written by minid3rqn): {e}") from None
+                         f"written by minid3rqn): {_npz_problem(e)}") from None
 
 
 def _last_line_problem(path: Path) -> str | None:

@@ -81,6 +81,7 @@ def test_check_works_on_the_students_copy_made_from_the_template(tmp_path, monke
     shipped whatever the copies hold."""
     ns = argparse.Namespace
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(student, "exercises_folder", lambda: tmp_path / "exercises")
     assert run_check(ns(exercise="all", file=None)) == 1
     for ex in EXERCISES.values():
         copy = tmp_path / "exercises" / ex.filename

@@ -64,6 +64,8 @@ def test_every_option_has_help(name):
     assert not silent, f"{name}: options without help text: {silent}"
 
 
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning",
+                            "ignore:invalid value encountered:RuntimeWarning")
 def test_a_diverging_training_ends_in_one_line(tmp_path, capsys):
     """A learning rate far too large: the gradients become NaN; the command says so in one
     line (exit status 1), with no traceback and no model written."""

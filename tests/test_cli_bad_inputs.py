@@ -100,8 +100,9 @@ CASES = [
                                                 "'{fx}/run' was made by train-agent, not distil"),
     # evaluate
     ("evaluate", "the following arguments are required: policies"),
-    ("evaluate nope.npz", "'nope.npz' is not a Q-net file"),
-    ("evaluate straight moon", "'moon' is not a Q-net file"),
+    ("evaluate nope.npz", "'nope.npz' not found"),
+    ("evaluate straight moon", "'moon' not found"),
+    ("evaluate {fx}/adir", "'{fx}/adir' is a folder"),
     ("evaluate {fx}/nan.npz", "'{fx}/nan.npz': weight"),
     ("evaluate {fx}/trunc.npz", "'{fx}/trunc.npz' is not a readable .npz"),
     ("evaluate straight {fx}/qnet.npz+{fx}/odd.npz", "was trained with another action table"),

@@ -245,12 +245,12 @@ def test_cli_smoke(tmp_path, capsys):
     assert main(["evaluate", str(model), "--mirror", "--flights", "2", "--steps", "3",
                  "--json", str(tmp_path / "m.jsonl")]) == 0
     assert json.loads((tmp_path / "m.jsonl").read_text())["mirror"] is True
-    for bad in (f"{model}+random", f"{model}+"):
-        with pytest.raises(ValueError, match="not a Q-net file"):
+    for bad, why in ((f"{model}+random", "'random' is a baseline"), (f"{model}+", "'' not found")):
+        with pytest.raises(ValueError, match=why):
             models.load_policy(bad)
     capsys.readouterr()
     assert main(["evaluate", f"{model}+nope.npz"]) == 2
-    assert "'nope.npz' is not a Q-net file" in capsys.readouterr().err
+    assert "'nope.npz' not found" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv, message", [

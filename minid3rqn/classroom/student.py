@@ -91,10 +91,21 @@ class Report:
         return f"Report({self.exercise!r}, passed={self.passed}, lines={len(self.lines)})"
 
 
+def exercises_folder() -> Path:
+    """Where the students' copies live: ``exercises/`` at the repository's root when the
+    package runs from a checkout (whatever the current folder), else under the current
+    folder."""
+    root = Path(__file__).resolve().parents[2]
+    return root / "exercises" if (root / "pyproject.toml").is_file() else Path("exercises")
+
+
 def working_copy(filename: str) -> Path:
-    """``exercises/<filename>`` under the current folder, copied from the template first
-    if it is not there yet (delete it to start over)."""
-    path = Path("exercises") / filename
+    """``exercises/<filename>`` (``exercises_folder``), copied from the template first if it
+    is not there yet (delete it to start over); as a path from the current folder if it
+    lies below it."""
+    path = exercises_folder() / filename
+    if path.is_absolute() and path.is_relative_to(Path.cwd()):
+        path = path.relative_to(Path.cwd())
     if not path.is_file():
         path.parent.mkdir(exist_ok=True)
         shutil.copyfile(TEMPLATES / filename, path)

@@ -101,9 +101,13 @@ def load_policy(spec: str, seed: int = 0, mirror: bool = False):
     parts = spec.split("+")
     for part in parts:
         if part in BASELINES or not Path(part).is_file():
+            what = "is a baseline (only Q-nets join with '+')" if part in BASELINES else \
+                "is a folder" if part and Path(part).is_dir() else "not found"
+            shipped = ", ".join(str(p.relative_to(MODELS.parent.parent)) for p in
+                                SHIPPED_QNETS.values())
             raise ValueError(f"{spec!r}: expected a baseline ({', '.join(BASELINES)}), a "
-                             f"Q-net .npz file, or Q-net files joined by '+'; {part!r} is not "
-                             f"a Q-net file")
+                             f"Q-net .npz file (shipped: {shipped}), or Q-net files joined "
+                             f"by '+'; {part!r} {what}")
     members = [load_qnet_policy(p) for p in parts]
     if not mirror:
         return members[0] if len(members) == 1 else EnsemblePolicy(members)
