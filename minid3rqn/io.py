@@ -225,6 +225,16 @@ def check_output(path, option: str, folder: bool = False, suffix: str | None = N
     return path
 
 
+def check_new_file(path, option: str, suffix: str, existing: str | None) -> Path:
+    """``check_output`` for a file a command writes whole: one that exists already is
+    replaced only with ``--overwrite`` (``existing`` "overwrite")."""
+    from .config import UsageError
+    path = check_output(path, option, suffix=suffix)
+    if path.exists() and existing != "overwrite":
+        raise UsageError(f"{option}: {str(path)!r} exists; give --overwrite to replace it")
+    return path
+
+
 def check_log(path, option: str) -> Path:
     """``check_output`` for a JSON-lines log (``.jsonl``) that records are appended to:
     also refused if its last line is not a whole JSON record (``append_jsonl`` would

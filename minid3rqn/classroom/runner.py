@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .checks import Exercise, find
-from .student import working_copy
+from .student import line_in, working_copy
 
 OUT = Path("runs/classroom")
 EVAL_SEED = 12345
@@ -388,18 +388,8 @@ def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "sm
         return run_agent_exercise(ex, module, report and report.summary, budget, variant,
                                   seed, out, flights, progress, named)
     except Exception as e:            # the student's code failed during the run: say where
-        line = _line_in(e, path)
-        if line is None:
+        found = line_in(path, e)
+        if found is None:
             raise
         raise SystemExit(f"exercise {ex.name}: your {path.name} raised {type(e).__name__} at "
-                         f"line {line} during the run: {e}") from None
-
-
-def _line_in(error: Exception, path: Path | None) -> int | None:
-    """The last line of the file ``path`` in ``error``'s traceback, or None."""
-    tb, line = error.__traceback__, None
-    while tb is not None and path is not None:
-        if Path(tb.tb_frame.f_code.co_filename).resolve() == path.resolve():
-            line = tb.tb_lineno
-        tb = tb.tb_next
-    return line
+                         f"line {found[0]} during the run: {e}") from None

@@ -113,15 +113,23 @@ def working_copy(filename: str) -> Path:
     return path
 
 
-def where_in(path, exc: BaseException) -> str:
-    """' (your file, line N: <code>)' for the deepest frame inside ``path``, else ''."""
+def line_in(path, exc: BaseException) -> tuple[int, str] | None:
+    """(line number, code) of the deepest frame of ``exc``'s traceback inside the file
+    ``path``, or None."""
     target = str(Path(path).resolve()) if path else None
-    found = ""
+    found = None
     for frame in traceback.extract_tb(exc.__traceback__):
         if target and str(Path(frame.filename).resolve()) == target:
-            code = (frame.line or "").strip()
-            found = f" (your file, line {frame.lineno}" + (f": {code})" if code else ")")
+            found = frame.lineno, (frame.line or "").strip()
     return found
+
+
+def where_in(path, exc: BaseException) -> str:
+    """' (your file, line N: <code>)' for the deepest frame inside ``path``, else ''."""
+    found = line_in(path, exc)
+    if found is None:
+        return ""
+    return f" (your file, line {found[0]}" + (f": {found[1]})" if found[1] else ")")
 
 
 def describe(exc: BaseException, path=None) -> str:

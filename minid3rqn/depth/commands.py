@@ -24,8 +24,9 @@ from pathlib import Path
 
 from ..config import (UsageError, add_arguments, add_existing_option, as_dict, flat_settings,
                       from_args, setting_names)
-from ..io import MODELS, check_output, claim_run_folder, load_npz, read_metadata, reason
-from .data import CollectConfig, collect_sequence, held_out, load_sequence
+from ..io import (MODELS, check_new_file, check_output, claim_run_folder, load_npz,
+                  read_metadata, reason)
+from .data import CollectConfig, Sequence, collect_sequence, held_out, load_sequence
 from .train import TrainConfig, check_resume, other_frames, train_depth
 
 RUNS = Path("runs/depth")
@@ -46,11 +47,11 @@ def _options(args: argparse.Namespace, cls, other=None) -> argparse.Namespace:
 
 # -- collect -----------------------------------------------------------------------------
 def _frames_file(path, option: str, scenario: str | None = None, role: str = "test",
-                 pose: bool = False) -> None:
+                 pose: bool = False) -> Sequence:
     """An existing file given as frames: one written by ``collect`` (of ``scenario``, if
     given: the one the command is about) that can serve as training frames (``role``
     "train": triplets; the poses too, with ``pose``) or held-out ones ("test": finite
-    ground-truth depth); UsageError if not."""
+    ground-truth depth); UsageError if not. Returns the frames."""
     import zipfile
 
     import numpy as np
@@ -80,6 +81,7 @@ def _frames_file(path, option: str, scenario: str | None = None, role: str = "te
     if scenario and filmed and filmed != scenario:
         raise UsageError(f"{option}: {str(path)!r} holds frames of {filmed}, not {scenario}; "
                          f"give --scenario {filmed}")
+    return seq
 
 
 def add_arguments_collect(p: argparse.ArgumentParser) -> None:
@@ -91,9 +93,8 @@ def add_arguments_collect(p: argparse.ArgumentParser) -> None:
 
 def run_collect(args) -> int:
     cfg = from_args(CollectConfig, args)
-    out = check_output(args.out or RUNS / cfg.scenario / "train.npz", "--out", suffix=".npz")
-    if out.exists() and args.existing != "overwrite":
-        raise UsageError(f"--out: {str(out)!r} exists; give --overwrite to replace it")
+    out = check_new_file(args.out or RUNS / cfg.scenario / "train.npz", "--out", ".npz",
+                         args.existing)
     t0 = time.time()
     seq = collect_sequence(cfg, out)
     print(f"collect: {len(seq)} frames in {int(seq.flight.max()) + 1} flights -> {out} "
@@ -247,12 +248,11 @@ def run_eval_depth(args) -> int:
     for option, out, suffix in (("--json", args.json, ".json"),
                                 ("--pictures", args.pictures, ".png")):
         if out:
-            check_output(out, option, suffix=suffix)
-            if Path(out).exists() and args.existing != "overwrite":
-                raise UsageError(f"{option}: {out!r} exists; give --overwrite to replace it")
+            check_new_file(out, option, suffix, args.existing)
     path = Path(args.test_data or RUNS / data.scenario / "test.npz")
+    test = None
     if path.is_file():              # of the --scenario asked for, if one is
-        _frames_file(path, "--test-data", getattr(args, "cfg__scenario", None))
+        test = _frames_file(path, "--test-data", getattr(args, "cfg__scenario", None))
         problem = None if args.test_data else other_frames(path, held_out(data))
         if problem:                 # the default file: train-depth --seed 0's held-out
             raise UsageError(f"--test-data: {problem}; give --test-data FILE")
@@ -264,7 +264,7 @@ def run_eval_depth(args) -> int:
         raise UsageError(f"--model: {str(e).removeprefix('DepthEstimator.load: ')}") from None
     if args.flip_tta:
         estimator = FlipAveraged(estimator)
-    test = load_sequence(path) if path.is_file() else collect_sequence(held_out(data), path)
+    test = test if test is not None else collect_sequence(held_out(data), path)
     t0 = time.time()
     results = evaluate(estimator, test)
     results["seconds"] = round(time.time() - t0, 2)

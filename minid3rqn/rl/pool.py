@@ -153,13 +153,16 @@ def _record_problem(r) -> str | None:
         return "is not a JSON object"
     if not isinstance(r.get("scenario"), str):
         return "names no scenario"
-    lists = [r.get(k) for k in ("world_seeds", "world_successes", "world_flights")]
-    if lists[0] is None:
+    seeds, successes, flights = (r.get(k) for k in ("world_seeds", "world_successes",
+                                                       "world_flights"))
+    if seeds is None:
         return None                      # an older record: world_counts says so
-    counts = lists[1:]
-    if not all(isinstance(x, list) and len(x) == len(lists[0]) for x in lists) or not all(
-            isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2 ** 40
-            for x in counts for v in x) or any(y > m or m < 1 for y, m in zip(*counts)):
+
+    def counts(x) -> bool:               # one whole number per world
+        return isinstance(x, list) and len(x) == len(seeds) and all(
+            isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2 ** 40 for v in x)
+    if not (isinstance(seeds, list) and counts(successes) and counts(flights)) or any(
+            y > m or m < 1 for y, m in zip(successes, flights)):
         return ("has world counts that do not match (world_seeds, world_successes and "
                 "world_flights: lists of one length, 0 <= successes <= flights, flights >= 1)")
     return None
