@@ -298,11 +298,11 @@ def run_reproduce(args) -> int:
     out = check_output(args.out, "--out", folder=True)
     try:            # the runs it finds in --out are continued (made with these settings)
         if cfg.quick:
-            reproduce_quick(out, workers=cfg.workers)
+            reproduce_quick(out, seed=cfg.seed, workers=cfg.workers)
         elif cfg.recipe == "paper":
-            reproduce(out, skip_depth=cfg.skip_depth, workers=cfg.workers)
+            reproduce(out, seed=cfg.seed, skip_depth=cfg.skip_depth, workers=cfg.workers)
         else:
-            reproduce_distilled(out, skip_depth=cfg.skip_depth, workers=cfg.workers,
+            reproduce_distilled(out, seed=cfg.seed, skip_depth=cfg.skip_depth, workers=cfg.workers,
                                 students=cfg.students)
     except ValueError as e:
         raise UsageError(f"--out: {e}") from None

@@ -75,6 +75,8 @@ class ReproduceConfig:
                               "OMP_NUM_THREADS=1)", source="run", check=at_least(1))
     students: int = setting(1, "--recipe distil: students of stage 2 (seeds 0, 1, ...)",
                             source="run", check=at_least(1))
+    seed: int = setting(0, "seeds every training (nets, worlds, exploration); the test "
+                           "worlds stay seed 271828", source="run", check=at_least(0))
 
     def __post_init__(self):
         validate(self)
