@@ -198,7 +198,7 @@ class _TimedEstimator:
 
     def __init__(self, est):
         self.est, self.seconds = est, 0.0
-        # What Flights asks before it calls predict: whether to hand it the frames before
+        # What an env may ask before it calls predict: whether to hand it the frames before
         # (a two-frame or cost-volume DispNet) and the motion since (a cost volume).
         self.needs_previous = getattr(est, "needs_previous", False)
         self.cost_planes = getattr(est, "cost_planes", 0)
@@ -217,7 +217,7 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
     """Render -> DispNet -> Q-net step -> world step for ``n_flights`` flights in lockstep
     (batched over flights): frames per second (= Hz per flight when n_flights = 1).
 
-    One step is ``policy.act`` on the current frames, then ``Flights.step``: the world
+    One step is ``policy.act`` on the current depth, then ``DroneEnv.step``: the world
     step (arc, clearance checks, reward, resets) and the next observation (render RGB,
     DispNet depth). Each frame is rendered and its depth predicted once
     (``rendered_twice`` runs a loop that re-renders and re-predicts the current pose
@@ -228,7 +228,7 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
     ``mirror``: each Q-net with its mirror image (``--mirror``)."""
     import numpy as np
     from minid3rqn.rl.models import shipped_depth_model, load_depth_estimator
-    from minid3rqn.rl.flights import Flights
+    from minid3rqn.world import DroneEnv
     policy, model = _qnet_model(ensemble, qnet, mirror)
     depth_path = Path(depth_model) if depth_model else shipped_depth_model("basic")
     if depth_path.exists():
@@ -243,18 +243,18 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
     if flip:
         depth_name += ", test-time flip"
     timed = _TimedEstimator(est)
-    fl = Flights("basic", n_flights, seed=0, depth="pred", depth_estimator=timed,
-                 autoreset=True)
-    obs = {"frames": fl.reset(), "started": np.ones(n_flights, bool)}
-    policy.reset(n_flights)
+    env = DroneEnv("basic", n_flights, seed=0, observation="pred", depth_model=timed,
+                   autoreset=True)
+    obs = {"depth": env.reset()[0], "started": np.ones(n_flights, bool)}
+    policy.reset(env)
     q_seconds = [0.0]
 
     def one_step():
         t = time.perf_counter()
-        a = policy.act({"frames": obs["frames"]}, started=obs["started"])
+        a = policy.act(obs["depth"], started=obs["started"])
         q_seconds[0] += time.perf_counter() - t
-        res = fl.step(a)
-        obs["frames"], obs["started"] = res.frames, res.terminated | res.truncated
+        obs["depth"], _, terminated, truncated, _ = env.step(a)
+        obs["started"] = terminated | truncated
 
     for _ in range(5):
         one_step()
@@ -276,24 +276,22 @@ def bench_framework(repeat: int, threads: int, n_flights: int = 1, ensemble: int
 
 def bench_framework_rendered_twice(repeat: int, threads: int, n_flights: int = 1) -> dict:
     """The loop this benchmark ran before: render and predict the current pose, act,
-    then ``Flights.step`` (which renders and predicts the next pose again): two
+    then ``DroneEnv.step`` (which renders and predicts the next pose again): two
     renders and two DispNet passes per step. Kept to compare with old figures."""
     import numpy as np
     from minid3rqn.rl.models import shipped_depth_model, load_depth_estimator
-    from minid3rqn.rl.flights import Flights
-    from minid3rqn.world import render_batch
+    from minid3rqn.world import DroneEnv, render_batch
     policy, model = _qnet_model()
     est = load_depth_estimator(shipped_depth_model("basic"))
-    fl = Flights("basic", n_flights, seed=0, depth="pred", depth_estimator=est, autoreset=True)
-    fl.reset()
-    policy.reset(n_flights)
+    env = DroneEnv("basic", n_flights, seed=0, observation="pred", depth_model=est,
+                   autoreset=True)
+    env.reset()
+    policy.reset(env)
 
     def one_step():
-        rgb, gt = render_batch(fl.batch, fl.poses, fl.camera)
-        depth = est.predict(rgb)
-        frames = np.clip(depth, 0, fl.cfg.max_depth) / fl.cfg.max_depth
-        a = policy.act({"frames": frames})
-        fl.step(a)
+        rgb, gt = render_batch(env.batch, env.poses, env.camera)
+        a = policy.act(est.predict(rgb))
+        env.step(a)
 
     n = max(20, repeat * 5)
     for _ in range(5):

@@ -27,7 +27,7 @@ except ImportError:
     resource = None
 
 from minid3rqn.allocator import keep_freed_memory
-from minid3rqn.world import (Camera, DroneEnv, VecDroneEnv, make_scene, render, render_batch,
+from minid3rqn.world import (Camera, DroneEnv, make_scene, render, render_batch,
                              sample_start_pose)
 from minid3rqn.world.renderer import cast_columns
 
@@ -75,12 +75,12 @@ def pymunk_depth_row(scene, pose, xn, reach=200.0):
 
 
 def profile_vec_step(scenario: str, n: int, seed: int, steps: int = 40) -> None:
-    """cProfile of ``steps`` VecDroneEnv.step calls, as the benchmark times them (the
+    """cProfile of ``steps`` DroneEnv.step calls of N flights, as the benchmark times them (the
     first 8 steps after a reset; resets are not profiled): each function's share of the
     time (cumulative, so nested shares overlap), the ones above 2 %."""
     import cProfile
     import pstats
-    vec = VecDroneEnv(n, scenario, seed=seed)
+    vec = DroneEnv(scenario, n, seed=seed, observation="rgb")
     act = np.random.default_rng(seed)
     prof = cProfile.Profile()
     for k in range(steps):
@@ -93,7 +93,7 @@ def profile_vec_step(scenario: str, n: int, seed: int, steps: int = 40) -> None:
     total = max(ct for (_, _, _, ct, _) in stats.values())
     rows = sorted(((ct / total, name, f"{file.rsplit('/', 1)[-1]}:{line}")
                    for (file, line, name), (_, _, _, ct, _) in stats.items()), reverse=True)
-    print(f"VecDroneEnv.step, {n} flights, {steps} steps, scenario {scenario!r}, seed {seed}:"
+    print(f"DroneEnv.step, {n} flights, {steps} steps, scenario {scenario!r}, seed {seed}:"
           f" cumulative share of the time\n")
     for share, name, where in rows:
         if share >= 0.02:
@@ -112,7 +112,7 @@ def main(argv=None):
                              "freed memory as python -m minid3rqn does (minid3rqn/allocator.py)")
     parser.add_argument("--profile", action="store_true",
                         help="instead: where a batched step's time goes (cProfile of 40 "
-                             "VecDroneEnv.step calls, --n-envs flights)")
+                             "DroneEnv.step calls, --n-envs flights)")
     args = parser.parse_args(argv)
     kept = False if args.default_malloc else keep_freed_memory()
     if args.profile:
@@ -153,7 +153,8 @@ def main(argv=None):
                  sec_batch1))
 
     # Steps, resets excluded (world generation and start sampling are timed below): the
-    # first 8 steps after a reset, a random action each, all flights rendered every step.
+    # first 8 steps after a reset, a random action each, every flight still flying
+    # rendered (RGB) every step.
     def time_steps(env, act_fn, episodes):
         times = []
         for _ in range(episodes):
@@ -162,20 +163,20 @@ def main(argv=None):
                 start = clock()
                 env.step(act_fn())
                 times.append(clock() - start)
-                if isinstance(env, DroneEnv) and env.done:
+                if not env.active.any():
                     break
         return float(np.median(times))
 
     act = np.random.default_rng(args.seed)
-    env = DroneEnv(args.scenario, seed=args.seed)
-    sec_single = time_steps(env, lambda: int(act.integers(5)), int(40 * k) or 3)
+    env = DroneEnv(args.scenario, 1, seed=args.seed, observation="rgb")
+    sec_single = time_steps(env, lambda: act.integers(0, 5, 1), int(40 * k) or 3)
     rows.append(("DroneEnv.step (distances + render), 1 flight", 1 / sec_single,
                  sec_single))
     n = args.n_envs
-    vec = VecDroneEnv(n, args.scenario, seed=args.seed)
+    vec = DroneEnv(args.scenario, n, seed=args.seed, observation="rgb")
     vec.reset()
     sec_vec = time_steps(vec, lambda: act.integers(0, 5, n), max(1, int(3 * k))) / n
-    rows.append((f"VecDroneEnv.step, {n} flights (per frame)", 1 / sec_vec, sec_vec))
+    rows.append((f"DroneEnv.step, {n} flights (per frame)", 1 / sec_vec, sec_vec))
     sec_start = best_time(lambda: sample_start_pose(scene, rng), int(20 * k) or 3, reps)
     rows.append(("sample_start_pose (a reset's start pose)", 1 / sec_start, sec_start))
 

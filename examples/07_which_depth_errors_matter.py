@@ -38,7 +38,6 @@ Ground truth is used only to build the views flown here; nothing is trained.
 import argparse
 import json
 import time
-from dataclasses import asdict
 from functools import partial
 from pathlib import Path
 
@@ -47,27 +46,25 @@ import numpy as np
 from minid3rqn.depth.evaluate import log_error_parts
 from minid3rqn.rl.models import VARIANT_NAMES, load_depth_estimator
 from minid3rqn.rl.evaluate import evaluate_policy
-from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
 from minid3rqn.rl.policies import QNetPolicy
+from minid3rqn.world import DroneEnv, render_depth_batch
 
 MODELS = Path(__file__).resolve().parents[1] / "minid3rqn" / "models"
 
 
-class MixedDepthFlights(Flights):
-    """Flights whose policy sees ``mix(gt, pred, camera)`` (metres, (n, H, W) each) in
+class MixedDepthEnv(DroneEnv):
+    """The env whose policy sees ``mix(gt, pred, camera)`` (metres, (n, H, W) each) in
     place of the DispNet's depth. Everything else (worlds, poses, collisions) is
-    ``Flights``'s, so the same seed flies the same test flights."""
+    ``DroneEnv``'s, so the same seed flies the same test flights."""
 
     def __init__(self, *args, mix=None, **kwargs):
         super().__init__(*args, **kwargs)
         self.mix = mix
 
-    def observe(self, idx=None):
-        depth, _, rgb = super().observe(idx)            # the DispNet's depth (metres)
-        idx = np.arange(self.n) if idx is None else np.asarray(idx)
-        gt = depth_only(self._sub_batch(idx), self.poses[idx], self.camera)
-        depth = self.mix(gt, depth, self.camera).astype(np.float32)
-        return depth, self.encode(depth), rgb
+    def observe(self, idx):
+        super().observe(idx)                            # the DispNet's depth (metres)
+        gt = render_depth_batch(self.batch_of(idx), self.poses[idx], self.camera)
+        self.obs[idx] = self.mix(gt, self.obs[idx], self.camera).astype(np.float32)
 
 
 # -- the views: each puts ground truth back in one part of the DispNet's depth ---------
@@ -104,7 +101,7 @@ def scale_fixed(gt, pred, cam):
     return pred * s[:, None, None]
 
 
-def error_structure(pol, est, scenario: str, cfg: FlightsConfig, seed: int, n: int = 64,
+def error_structure(pol, est, scenario: str, seed: int, n: int = 64,
                     steps: int = 20) -> dict:
     """The DispNet's log-depth error e = ln(pred / GT) on the frames of ``n`` flights of
     ``steps`` steps flown by the Q-net in test worlds (both clipped to [0.5 m, 10 m], the range the
@@ -114,16 +111,15 @@ def error_structure(pol, est, scenario: str, cfg: FlightsConfig, seed: int, n: i
 
     a the frame's mean, b the column means of e - a, c the row means of e - a - b, r the
     rest. Returns the std of e and of each part (pixels weighted alike)."""
-    cfg = FlightsConfig(**{**asdict(cfg), "test_worlds": True})     # fresh worlds
-    fl = Flights(scenario, n, seed=seed, config=cfg, depth="pred", depth_estimator=est,
-                 autoreset=True)
-    frames = fl.reset()
-    pol.reset(n)
+    env = DroneEnv(scenario, n, seed=seed, worlds="test", observation="pred", depth_model=est,
+                   autoreset=True)                                  # fresh worlds
+    obs, _ = env.reset()
+    pol.reset(env)
     gts, preds = [], []
     for _ in range(steps):
-        gts.append(depth_only(fl.batch, fl.poses, fl.camera))
-        preds.append(fl.last_depth.copy())
-        frames = fl.step(pol.act({"frames": frames, "depth": fl.last_depth})).frames
+        gts.append(env.gt_depth())
+        preds.append(obs)
+        obs = env.step(pol.act(obs))[0]
     parts = log_error_parts(np.concatenate(gts), np.concatenate(preds))   # (F, H, W)
     parts.pop("mean")
     return {**parts, "frames": len(gts) * n}
@@ -166,7 +162,6 @@ def main():
 
     est = load_depth_estimator(args.depth_model)
     pol = QNetPolicy.load(args.qnet)
-    cfg = FlightsConfig()
     chosen = views(args.near)
     if not (args.all or args.only):
         chosen = {k: chosen[k] for k in ("predicted", "GT")}
@@ -179,7 +174,7 @@ def main():
     from minid3rqn.nets.qnet import variant_name
     print(f"{VARIANT_NAMES[variant_name(pol.qnet.config)]} {args.qnet} on {args.scenario}, "
           f"DispNet {args.depth_model}; {n} flights, evaluation seed {args.seed}")
-    parts = error_structure(pol, est, args.scenario, cfg, args.seed,
+    parts = error_structure(pol, est, args.scenario, args.seed,
                             *((4, 2) if args.smoke else ()))
     print("  the DispNet's error in ln(depth) on %d frames: std %.3f; per frame %.3f, "
           "per column %.3f, per row %.3f, rest %.3f" % (
@@ -188,9 +183,8 @@ def main():
     for name, mix in chosen.items():
         t0 = time.time()
         res = evaluate_policy(pol, args.scenario, n, args.seed, steps, depth="pred",
-                              depth_estimator=est, flights_config=cfg, progress=False,
-                              workers=args.workers,
-                              flights_factory=partial(MixedDepthFlights, mix=mix))
+                              depth_estimator=est, progress=False, workers=args.workers,
+                              env_factory=partial(MixedDepthEnv, mix=mix))
         print(f"  {name:<26} {res.rate:.3f} [{res.ci_low:.3f}, {res.ci_high:.3f}]  "
               f"({res.successes}/{n}, {time.time() - t0:.0f} s)", flush=True)
         if args.json:

@@ -32,7 +32,7 @@ import numpy as np
 
 from minid3rqn.rl.models import actions_and_camera, load_depth_estimator, load_policy
 from minid3rqn.rl.evaluate import evaluate_policy
-from minid3rqn.rl.flights import Flights
+from minid3rqn.world import DroneEnv
 from minid3rqn.world.distance import KINDS, nearest_distance_batch, nearest_distance_by_kind
 from minid3rqn.world.stepper import action_arcs
 
@@ -40,23 +40,23 @@ MODELS = Path(__file__).resolve().parents[1] / "minid3rqn" / "models"
 HALF_VIEW = 45.0        # degrees: half the camera's horizontal field of view
 
 
-class CrashLog(Flights):
-    """Flights that append, for each collision, (kind, bearing in degrees, yaw rate of
-    the last action) to ``log``. Worlds, poses and collisions are ``Flights``'s own."""
+class CrashLog(DroneEnv):
+    """The env that appends, for each collision, (kind, bearing in degrees, yaw rate of
+    the last action) to ``log``. Worlds, poses and collisions are ``DroneEnv``'s own."""
 
     def __init__(self, *args, log=None, **kwargs):
         super().__init__(*args, **kwargs)
         self.log = log
 
-    def step(self, actions, active=None):
+    def step(self, actions):
         before = self.poses.copy()                 # where the last action was chosen
-        res = super().step(actions, active)
-        hit = np.flatnonzero(res.terminated)
+        res = super().step(actions)
+        hit = np.flatnonzero(res[2])               # terminated: a collision
         if hit.size:
-            # the same arc as Flights.step, to find where the clearance first fell short
+            # the same arc as DroneEnv.step, to find where the clearance first fell short
             chosen = np.asarray(actions)[hit]
             path = action_arcs(before[hit], self.actions, chosen, self.dt)
-            batch = self._sub_batch(hit)
+            batch = self.batch_of(hit)
             clear = nearest_distance_batch(batch, path[:, :, :2])
             first = (clear < self.safe_distance).argmax(axis=1)
             kind, bearing = what_was_hit(batch, before[hit], path[np.arange(hit.size), first])
@@ -120,8 +120,7 @@ def main(argv=None):
         log = []
         res = evaluate_policy(policy, scenario, args.flights, args.seed, depth=args.depth,
                               depth_estimator=est, progress=False,
-                              flights_factory=partial(CrashLog, log=log,
-                                                      camera=camera))
+                              env_factory=partial(CrashLog, log=log, camera=camera))
         crashes = np.concatenate(log) if log else np.zeros((0, 3))
         assert len(crashes) == res.flights - res.successes   # every failure was a collision
         print(f"{res.line()}\n    {summarise(crashes)}", flush=True)

@@ -409,35 +409,30 @@ def test_log_error_parts_splits_the_error():
     assert parts["per column"] > 5 * max(parts["per row"], parts["rest"]), parts
 
 
-def test_depth_fn_applies_to_the_flights_given_it_only():
-    """Flights(depth_fn=...) corrupt every depth map they observe (training); flights
-    made without it (the runner's test flights) see the depth as it is; the same seed
+def test_depth_fn_applies_to_the_env_given_it_only():
+    """DroneEnv(depth_fn=...) corrupts every depth map it observes (training); an env
+    made without it (the runner's test flights) sees the depth as it is; the same seed
     flies the same worlds and start poses either way."""
-    from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
-    cfg = FlightsConfig(n_worlds=2)
+    from minid3rqn.world import DroneEnv
 
     def double(depth, rng):
         return depth * 2.0
 
-    fl = Flights("basic", 3, seed=0, config=cfg, depth_fn=double)
-    frames = fl.reset()
-    gt = depth_only(fl.batch, fl.poses, fl.camera)
-    np.testing.assert_allclose(fl.last_depth, 2.0 * gt, rtol=1e-6)
-    np.testing.assert_allclose(frames, np.clip(2.0 * gt, 0, 10) / 10, atol=1e-6)
-    res = fl.step(np.zeros(3, np.int64))
-    gt = depth_only(fl.batch, fl.poses, fl.camera)
-    np.testing.assert_allclose(res.frames, np.clip(2.0 * gt, 0, 10) / 10, atol=1e-6)
-    plain = Flights("basic", 3, seed=0, config=cfg)
-    noisy = Flights("basic", 3, seed=0, config=cfg,
-                    depth_fn=lambda d, rng: d * rng.uniform(0.5, 2.0))
-    plain.reset(), noisy.reset()
+    env = DroneEnv("basic", 3, seed=0, n_worlds=2, depth_fn=double)
+    obs, _ = env.reset()
+    np.testing.assert_allclose(obs, 2.0 * env.gt_depth(), rtol=1e-6)
+    obs = env.step(np.zeros(3, np.int64))[0]
+    np.testing.assert_allclose(obs, 2.0 * env.gt_depth(), rtol=1e-6)
+    plain = DroneEnv("basic", 3, seed=0, n_worlds=2)
+    noisy = DroneEnv("basic", 3, seed=0, n_worlds=2,
+                     depth_fn=lambda d, rng: d * rng.uniform(0.5, 2.0))
+    plain_obs, noisy_obs = plain.reset()[0], noisy.reset()[0]
     assert np.array_equal(plain.world_seeds, noisy.world_seeds)
     np.testing.assert_array_equal(plain.poses, noisy.poses)
-    assert not np.allclose(plain.last_depth, noisy.last_depth)
-    np.testing.assert_array_equal(plain.last_depth,
-                                  depth_only(plain.batch, plain.poses, plain.camera))
+    assert not np.allclose(plain_obs, noisy_obs)
+    np.testing.assert_array_equal(plain_obs, plain.gt_depth())
     # a corruption that breaks the depth is stopped with a clear message
-    bad = Flights("basic", 2, seed=0, config=cfg, depth_fn=lambda d, rng: -d)
+    bad = DroneEnv("basic", 2, seed=0, n_worlds=2, depth_fn=lambda d, rng: -d)
     with pytest.raises(ValueError, match="positive finite"):
         bad.reset()
 
@@ -486,25 +481,25 @@ def test_run_depth_errors_smoke(tmp_path, monkeypatch):
 
 
 # -- the student's change reaches training as a parameter ----------------------------------
-def test_flights_pay_the_students_reward():
-    from minid3rqn.rl.flights import Flights, FlightsConfig
+def test_the_env_pays_the_students_reward():
+    from minid3rqn.world import DroneEnv
     seen = {}
 
     def reward(d, collided, yaw_rate=0.0):
         seen["yaw"] = np.asarray(yaw_rate).copy()
         return np.where(collided, -1.0, 7.0 - np.abs(yaw_rate))
 
-    fl = Flights("basic", 3, seed=0, reward_fn=reward, config=FlightsConfig(n_worlds=2))
-    fl.reset()
-    res = fl.step(np.array([0, 3, 4]))
+    env = DroneEnv("basic", 3, seed=0, n_worlds=2, reward_fn=reward, observation=None)
+    env.reset()
+    _, rewards, terminated, _, _ = env.step(np.array([0, 3, 4]))
     np.testing.assert_allclose(seen["yaw"], [0.0, 0.5, -0.5])
-    want = np.where(res.terminated, -1.0, 7.0 - np.array([0.0, 0.5, 0.5]))
-    np.testing.assert_allclose(res.rewards, want)
-    two = Flights("basic", 3, seed=0, reward_fn=lambda d, c: np.where(c, -1.0, 3.0),
-                  config=FlightsConfig(n_worlds=2))
+    want = np.where(terminated, -1.0, 7.0 - np.array([0.0, 0.5, 0.5]))
+    np.testing.assert_allclose(rewards, want)
+    two = DroneEnv("basic", 3, seed=0, n_worlds=2, observation=None,
+                   reward_fn=lambda d, c: np.where(c, -1.0, 3.0))
     two.reset()
-    res = two.step(np.array([0, 3, 4]))
-    np.testing.assert_allclose(res.rewards, np.where(res.terminated, -1.0, 3.0))
+    _, rewards, terminated, _, _ = two.step(np.array([0, 3, 4]))
+    np.testing.assert_allclose(rewards, np.where(terminated, -1.0, 3.0))
 
 
 # -- the runner and the CLI hooks ------------------------------------------------------

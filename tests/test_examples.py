@@ -21,7 +21,7 @@ EXAMPLES = ROOT / "examples"
 EXPECTED = ["01_autograd_tour.py", "02_world_and_camera.py", "03_train_depth.py",
             "04_train_d3rqn.py", "05_evaluate.py", "06_wall_ahead.py",
             "07_which_depth_errors_matter.py", "08_where_flights_crash.py",
-            "09_plane_sweep.py"]
+            "09_plane_sweep.py", "10_sb3_dqn.py"]
 SMOKE_SECONDS = 30        # each smoke run should take less than this on a laptop
 TIMEOUT = 180             # generous hard limit: the test machine may be shared
 

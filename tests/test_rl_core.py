@@ -1,4 +1,6 @@
 """The Q-network family, the double-Q target, the episodic replay and recurrent state."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -13,6 +15,11 @@ from minid3rqn.world import ACTIONS
 pytestmark = pytest.mark.rl
 
 H, W = 32, 104
+
+
+def flights(n: int):
+    """What a policy's ``reset`` reads of an env of n flights (its number of flights)."""
+    return SimpleNamespace(n_envs=n)
 
 
 def build_qnet(variant: str = "d3rqn", rng=None, **overrides) -> QNet:
@@ -148,11 +155,11 @@ def test_recurrent_state_reset_and_advanced_on_random_actions():
     np.testing.assert_array_equal(state3[0].data[0], state2[0].data[0])
     # the greedy policy resets on "started" flights
     pol = QNetPolicy(agent.online)
-    pol.reset(3)
-    pol.act({"frames": obs[:, 0]})
+    pol.reset(flights(3))
+    pol.act(obs[:, 0])
     q_fresh = pol.last_q.copy()
-    pol.act({"frames": obs[:, 0]})
-    pol.act({"frames": obs[:, 0]}, started=np.array([True, False, False]))
+    pol.act(obs[:, 0])
+    pol.act(obs[:, 0], started=np.array([True, False, False]))
     np.testing.assert_allclose(pol.last_q[0], q_fresh[0], rtol=1e-5, atol=1e-6)
 
 
@@ -163,14 +170,14 @@ def test_ensemble_acts_greedily_on_the_members_mean_q():
     rng = np.random.default_rng(2)
     frames = rng.random((4, 3, H, W)).astype(np.float32)        # 4 steps, 3 flights
     ens, alone = EnsemblePolicy([QNetPolicy(n) for n in nets]), [QNetPolicy(n) for n in nets]
-    ens.reset(3)
+    ens.reset(flights(3))
     for p in alone:
-        p.reset(3)
+        p.reset(flights(3))
     for t in range(4):
         started = np.array([False, t == 2, False])
-        a = ens.act({"frames": frames[t]}, started=started)
+        a = ens.act(frames[t], started=started)
         for p in alone:
-            p.act({"frames": frames[t]}, started=started)
+            p.act(frames[t], started=started)
         mean = np.mean([p.last_q for p in alone], axis=0)
         np.testing.assert_allclose(ens.last_q, mean, rtol=1e-6, atol=1e-7)
         np.testing.assert_array_equal(a, np.argmax(mean, axis=1))
@@ -206,15 +213,15 @@ def test_mirrored_policy_flies_the_mirrored_view():
     both = EnsemblePolicy([QNetPolicy(net), MirroredPolicy(QNetPolicy(net), ACTIONS)])
     both_flipped = EnsemblePolicy([QNetPolicy(net), MirroredPolicy(QNetPolicy(net), ACTIONS)])
     for p in (plain, mirrored, both, both_flipped):
-        p.reset(2)
+        p.reset(flights(2))
     for t in range(5):
         started = np.array([False, t == 3])
-        plain.act({"frames": flipped[t]}, started=started)
-        a = mirrored.act({"frames": frames[t]}, started=started)
+        plain.act(flipped[t], started=started)
+        a = mirrored.act(frames[t], started=started)
         np.testing.assert_allclose(mirrored.last_q, plain.last_q[:, perm], rtol=1e-6)
         np.testing.assert_array_equal(a, np.argmax(plain.last_q[:, perm], axis=1))
-        both.act({"frames": frames[t]}, started=started)
-        both_flipped.act({"frames": flipped[t]}, started=started)
+        both.act(frames[t], started=started)
+        both_flipped.act(flipped[t], started=started)
         np.testing.assert_allclose(both_flipped.last_q, both.last_q[:, perm], rtol=1e-5,
                                    atol=1e-7)
     with pytest.raises(ValueError, match="action table"):

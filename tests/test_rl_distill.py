@@ -12,7 +12,8 @@ from minid3rqn.config import ConfigError
 from minid3rqn.rl.agent import AgentConfig
 from minid3rqn.rl.distill import (DistilConfig, Distillation, LabelledReplay, distil, kl_term,
                                   load_teacher)
-from minid3rqn.rl.flights import Flights, FlightsConfig
+from minid3rqn.rl.observe import encode_depth
+from minid3rqn.world import DroneEnv
 from minid3rqn.rl.train import TrainConfig, start_run
 from minid3rqn.world import ACTIONS
 
@@ -52,10 +53,10 @@ def distillation(cfg: DistilConfig, folder, depth_estimator=None):
     """A distillation's run, started, and its steps (what ``distil`` hands the loop)."""
     from minid3rqn.rl import distill
     teacher = load_teacher(cfg.teachers, (32, 104), 5)
-    teacher.reset(cfg.train.n_envs)
     steps = Distillation(cfg, teacher, ACTIONS, 7)
     run = start_run(cfg.train, folder, depth_estimator,
                     replay=lambda c, n, s, seed: distill.LabelledReplay(c, n, s, 5, seed=seed))
+    teacher.reset(run.env)
     return run, steps
 
 
@@ -102,17 +103,16 @@ class _Flat:
         return np.full(rgb.shape[:3], 5.0, np.float32)
 
 
-def test_gt_frames_are_the_gt_observation_in_pred_mode():
-    cfg = FlightsConfig(n_worlds=2)
-    gt = Flights("basic", 3, seed=4, config=cfg, depth="gt")
-    pred = Flights("basic", 3, seed=4, config=cfg, depth="pred", depth_estimator=_Flat())
+def test_gt_depth_is_the_gt_observation_in_pred_mode():
+    gt = DroneEnv("basic", 3, seed=4, n_worlds=2, observation="depth")
+    pred = DroneEnv("basic", 3, seed=4, n_worlds=2, observation="pred", depth_model=_Flat())
     pred.reset()
-    np.testing.assert_array_equal(pred.gt_frames(), gt.reset())
+    np.testing.assert_array_equal(pred.gt_depth(), gt.reset()[0])
     a = np.array([1, 2, 0])
-    gt.step(a)
-    res = pred.step(a)
-    assert np.allclose(res.frames, 0.5)                     # the student sees the estimator
-    np.testing.assert_array_equal(pred.gt_frames(), gt.frames)
+    seen = gt.step(a)[0]
+    obs = pred.step(a)[0]
+    assert np.allclose(obs, 5.0)                            # the student sees the estimator
+    np.testing.assert_array_equal(pred.gt_depth(), seen)
 
 
 def test_full_teacher_mix_flies_the_teachers_actions(tmp_path):
@@ -121,14 +121,15 @@ def test_full_teacher_mix_flies_the_teachers_actions(tmp_path):
     for _ in range(6):
         actions = steps.act(run)
         np.testing.assert_array_equal(actions, np.argmax(steps.teacher.last_q, axis=1))
-        res = run.flights.step(actions)
-        done = res.terminated | res.truncated
-        run.replay.add_step(actions, res.rewards, res.terminated, res.truncated,
-                            res.final_frames)
+        obs, rewards, terminated, truncated, info = run.env.step(actions)
+        done = terminated | truncated
+        frames = encode_depth(obs)
+        run.replay.add_step(actions, rewards, terminated, truncated,
+                            encode_depth(info["final_obs"]))
         if done.any():
-            run.replay.start_episodes(np.flatnonzero(done), res.frames[done])
+            run.replay.start_episodes(np.flatnonzero(done), frames[done])
             run.state = run.agent.reset_state(run.state, done)
-        run.stacker.push(res.frames)
+        run.stacker.push(frames)
 
 
 def test_teacher_mix_decays_linearly_to_zero(tmp_path):

@@ -14,11 +14,10 @@ from minid3rqn.io import load_npz
 from minid3rqn.nets.qnet import QNetConfig
 from minid3rqn.rl import models
 from minid3rqn.rl.evaluate import evaluate_policy, wilson_interval
-from minid3rqn.rl.flights import Flights, FlightsConfig, depth_only
 from minid3rqn.rl.policies import (OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy,
                                    StraightPolicy)
 from minid3rqn.rl.train import TrainConfig, start_run, train
-from minid3rqn.world import ACTIONS, Camera
+from minid3rqn.world import ACTIONS, Camera, DroneEnv, render_depth_batch
 
 pytestmark = pytest.mark.rl
 
@@ -42,18 +41,18 @@ def test_wilson_interval():
     assert hi == 1.0 and lo > 0.997
 
 
-def test_flights_step_contract():
-    fl = Flights("basic", 4, seed=0, autoreset=True, config=FlightsConfig(n_worlds=2))
-    frames = fl.reset()
-    assert frames.shape == (4, 32, 104) and frames.min() >= 0 and frames.max() <= 1
+def test_training_env_step_contract():
+    env = DroneEnv("basic", 4, seed=0, n_worlds=2, autoreset=True)
+    depth, _ = env.reset()
+    assert depth.shape == (4, 32, 104) and depth.min() > 0
     for _ in range(30):
-        res = fl.step(np.zeros(4, dtype=np.int64))
-        assert not (res.terminated & res.truncated).any()
+        _, rewards, terminated, truncated, _ = env.step(np.zeros(4, dtype=np.int64))
+        assert not (terminated & truncated).any()
         # a collision pays -1; otherwise the clearance (>= 0.5 m)
-        assert np.all(res.rewards[res.terminated] == -1.0)
-        assert np.all(res.rewards[~res.terminated] >= 0.5)
+        assert np.all(rewards[terminated] == -1.0)
+        assert np.all(rewards[~terminated] >= 0.5)
     with pytest.raises(ValueError, match="actions"):
-        fl.step(np.full(4, 7))
+        env.step(np.full(4, 7))
 
 
 def test_training_smoke_and_exact_resume(tmp_path):
@@ -116,7 +115,7 @@ def test_a_students_actions_reward_and_camera_are_parameters(tmp_path):
     run = train(cfg, tmp_path, reward_fn=reward, depth_fn=depth_fn, td_target=target,
                 progress=False)
     assert all(seen.values()), seen
-    assert run.flights.n_actions == 7 and run.flights.camera.hfov_deg == 60.0
+    assert run.env.n_actions == 7 and run.env.camera.hfov_deg == 60.0
     meta = QNetPolicy.load(tmp_path / "model.npz").meta
     np.testing.assert_array_equal(models.trained_actions(meta), table)
     assert models.trained_camera(meta) == Camera(hfov_deg=60.0)
@@ -163,19 +162,16 @@ class _FlatEstimator:
         return np.full(rgb.shape[:3], 5.0, np.float32)
 
 
-class _GTInPredMode(Flights):
-    """Pred-mode flights whose policy sees ground truth (what examples/07 builds on)."""
+class _GTInPredMode(DroneEnv):
+    """A pred-mode env whose policy sees ground truth (what examples/07 builds on)."""
 
-    def observe(self, idx=None):
-        _, _, rgb = super().observe(idx)
-        idx = np.arange(self.n) if idx is None else np.asarray(idx)
-        gt = depth_only(self._sub_batch(idx), self.poses[idx], self.camera)
-        return gt, (np.clip(gt, 0, self.cfg.max_depth) / self.cfg.max_depth
-                    ).astype(np.float32), rgb
+    def observe(self, idx):
+        super().observe(idx)
+        self.obs[idx] = render_depth_batch(self.batch_of(idx), self.poses[idx], self.camera)
 
 
-def test_evaluation_flies_the_flights_the_factory_makes():
-    """``flights_factory`` is what each chunk is flown in: a pred-mode subclass that
+def test_evaluation_flies_the_env_the_factory_makes():
+    """``env_factory`` is what each chunk is flown in: a pred-mode subclass that
     shows ground truth flies exactly the GT evaluation (same worlds, same starts), in one
     process or two; the flat stand-in DispNet alone flies differently."""
     pol = ReactivePolicy(ACTIONS)
@@ -184,17 +180,19 @@ def test_evaluation_flies_the_flights_the_factory_makes():
     flat = evaluate_policy(pol, "basic", depth="pred", depth_estimator=_FlatEstimator(), **kw)
     for workers in (1, 2):
         mixed = evaluate_policy(pol, "basic", depth="pred", depth_estimator=_FlatEstimator(),
-                                flights_factory=_GTInPredMode, workers=workers, **kw)
+                                env_factory=_GTInPredMode, workers=workers, **kw)
         assert (mixed.successes, mixed.mean_steps) == (gt.successes, gt.mean_steps)
     assert flat.mean_steps != gt.mean_steps
 
 
 def test_training_world_pool_is_set_and_checked(tmp_path):
-    run = start_run(TrainConfig(n_worlds=5, n_envs=3), tmp_path)
-    assert len(run.flights.worlds) == 5 and len(set(run.flights.world_seeds.tolist())) == 5
+    from minid3rqn.rl.train import training_worlds
+    run = start_run(TrainConfig(n_worlds=5, n_envs=3, seed=4), tmp_path)
+    assert len(run.env.worlds) == 5 and len(set(run.env.world_seeds.tolist())) == 5
+    np.testing.assert_array_equal(training_worlds(4, 5), run.env.world_seeds)
     for bad in (0, -2, 2.5, True):
         with pytest.raises(ValueError, match="n_worlds"):
-            Flights("basic", 3, seed=0, config=FlightsConfig(n_worlds=bad))
+            DroneEnv("basic", 3, seed=0, n_worlds=bad)
 
 
 def test_evaluation_rejects_bad_counts():
@@ -251,6 +249,18 @@ def test_cli_smoke(tmp_path, capsys):
     capsys.readouterr()
     assert main(["evaluate", f"{model}+nope.npz"]) == 2
     assert "'nope.npz' not found" in capsys.readouterr().err
+    # the paper's protocol: the Q-net flies its own training worlds
+    from minid3rqn.rl.train import training_worlds
+    assert main(["evaluate", str(model), "--worlds", "train", "--flights", "6", "--steps", "3",
+                 "--json", str(tmp_path / "w.jsonl")]) == 0
+    record = json.loads((tmp_path / "w.jsonl").read_text())
+    trained = meta["train_config"]
+    own = set(training_worlds(trained["seed"], trained["n_worlds"]).tolist())
+    assert record["worlds_set"] == "train" and set(record["world_seeds"]) <= own
+    for argv, why in ((["random"], "a baseline has none"),
+                      ([str(model), "--scenario", "corners"], "trained in 'basic' worlds")):
+        assert main(["evaluate", *argv, "--worlds", "train", "--flights", "2"]) == 2
+        assert why in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -357,11 +367,9 @@ def test_fly_gif_has_a_depth_key_and_is_deterministic(tmp_path):
 
 def test_a_raised_horizon_reaches_the_flights_frames():
     """A raised horizon (Camera.horizon_row) reaches the flights' frames."""
-    fl = Flights("basic", 2, seed=0, config=FlightsConfig(n_worlds=2),
-                 camera=Camera(horizon_row=4))
-    assert fl.camera.cy == 4.0
-    fl.reset()
-    depth, _, _ = fl.observe()
+    env = DroneEnv("basic", 2, seed=0, n_worlds=2, camera=Camera(horizon_row=4))
+    assert env.camera.cy == 4.0
+    depth, _ = env.reset()
     floor = 1.0 / ((31 - 4) / 52)                 # the lowest row sees the floor 1.93 m ahead
     assert depth.shape == (2, 32, 104) and np.all(depth[:, -1] <= floor + 1e-4)
 

@@ -6,12 +6,11 @@ import numpy as np
 import pymunk
 import pytest
 
-from minid3rqn.world import (ACTIONS, SCENARIOS, Camera, DroneEnv, SceneBatch, VecDroneEnv,
-                             depth_to_rgb, inverse_warp_numpy, make_scene, nearest_distance,
-                             nearest_distance_batch, oracle_policy, paper_reward,
-                             pose_to_camera_transform, random_policy,
+from minid3rqn.world import (ACTIONS, SCENARIOS, Camera, DroneEnv, SceneBatch, depth_to_rgb,
+                             inverse_warp_numpy, make_scene, nearest_distance,
+                             nearest_distance_batch, paper_reward, pose_to_camera_transform,
                              relative_transform, render, render_batch, sample_start_pose,
-                             straight_policy, topdown)
+                             topdown)
 from minid3rqn.world.distance import nearest_distance_by_kind
 from minid3rqn.world.geometry import backproject, bilinear_sample_numpy
 from minid3rqn.world.kinematics import integrate_arc, substep_poses
@@ -331,28 +330,74 @@ def test_paper_reward():
 
 # ----------------------------------------------------------------------------- environment
 
-def test_env_determinism_and_spaces():
+def test_env_determinism_observations_and_options():
+    """The same seed flies the same flights; reset(seed=s) starts over as seed s; each
+    observation has its shape; options pin the world and the start; no seed: fresh
+    entropy."""
     runs = []
     for _ in range(2):
-        env = DroneEnv("channel", seed=4)
+        env = DroneEnv("channel", 2, seed=4, observation="rgb")
         obs, info = env.reset()
-        assert obs.shape == (32, 104, 3) and obs.dtype == np.uint8
-        assert info["depth"].shape == (32, 104)
+        assert obs.shape == (2, 32, 104, 3) and obs.dtype == np.uint8
         rng = np.random.default_rng(0)
-        trace = [info["pose"]]
+        trace = [env.poses.copy()]
         for _ in range(5):
-            obs, r, term, trunc, info = env.step(int(rng.integers(env.action_space.n)))
-            trace.append(info["pose"])
-            if term:
-                break
+            obs, r, term, trunc, info = env.step(rng.integers(env.n_actions, size=2))
+            trace.append(env.poses.copy())
         runs.append((np.array(trace), obs))
     np.testing.assert_array_equal(runs[0][0], runs[1][0])
     np.testing.assert_array_equal(runs[0][1], runs[1][1])
     env = DroneEnv("channel", seed=0)
-    p1 = env.reset(seed=9)[1]["pose"]
+    obs, info = env.reset(seed=9)
+    assert obs.shape == (1, 32, 104) and obs.dtype == np.float32 and obs.min() > 0
+    np.testing.assert_array_equal(obs, env.gt_depth())
+    p1 = env.poses.copy()
     env.reset()
-    assert np.array_equal(env.reset(seed=9)[1]["pose"], p1)
-    assert env.reset(options={"scene_seed": 5})[1]["scene_seed"] == 5
+    env.reset(seed=9)
+    np.testing.assert_array_equal(env.poses, p1)
+    _, info = env.reset(options={"scene_seed": 5, "pose": (1.0, 2.0, 0.5)})
+    assert info["scene_seed"][0] == 5 and env.poses[0].tolist() == [1.0, 2.0, 0.5]
+    assert DroneEnv(observation=None).reset()[0] is None
+    assert not np.array_equal(DroneEnv(n_worlds=4).world_seeds,     # no seed: fresh
+                              DroneEnv(n_worlds=4).world_seeds)     # entropy
+
+
+def test_env_worlds_train_and_test_are_disjoint():
+    """worlds='train' and 'test' draw their pools from disjoint seed ranges; a sequence
+    of seeds is the pool itself."""
+    train = DroneEnv("basic", 4, seed=0, worlds="train", n_worlds=5, observation=None)
+    test = DroneEnv("basic", 4, seed=0, worlds="test", n_worlds=5, observation=None)
+    assert train.world_seeds.max() < 1_000_000 <= test.world_seeds.min()
+    assert len(set(train.world_seeds.tolist())) == 5
+    own = DroneEnv("basic", 8, seed=3, worlds=[11, 12], observation=None)
+    _, info = own.reset()
+    assert set(info["scene_seed"].tolist()) <= {11, 12}
+
+
+def test_env_autoreset_and_ended_flights():
+    """Without autoreset an ended flight stays put (reward 0, flags False); with it the
+    flight restarts at once and info["final_obs"] holds its last view."""
+    env = DroneEnv("basic", 3, seed=0, n_worlds=2, max_steps=2)
+    env.reset()
+    _, _, first, _, _ = env.step(np.zeros(3, np.int64))
+    obs, reward, term, trunc, info = env.step(np.zeros(3, np.int64))
+    assert not env.active.any() and (first | term | trunc).all()
+    assert (info["is_success"] == trunc).all()
+    poses = env.poses.copy()
+    obs2, reward, term, trunc, info = env.step(np.zeros(3, np.int64))
+    np.testing.assert_array_equal(env.poses, poses)
+    np.testing.assert_array_equal(obs2, obs)
+    assert not (reward.any() or term.any() or trunc.any())
+    auto = DroneEnv("basic", 3, seed=0, n_worlds=2, max_steps=2, autoreset=True)
+    auto.reset()
+    done = np.zeros(3, bool)
+    while not done.any():
+        obs, _, term, trunc, info = auto.step(np.zeros(3, np.int64))
+        done = term | trunc
+    assert auto.active.all() and (auto.steps[done] == 0).all()
+    np.testing.assert_array_equal(obs[done], auto.gt_depth()[done])   # the new episodes'
+    assert not np.array_equal(info["final_obs"][done], obs[done])      # first views
+    np.testing.assert_array_equal(info["final_obs"][~done], obs[~done])
 
 
 def _facing_wall(env, scene_seed=2):
@@ -373,20 +418,19 @@ def _facing_wall(env, scene_seed=2):
 def test_flying_into_a_wall_is_caught_at_any_speed(speed):
     """Even at 10 m per step (100 sub-steps) the zero-thickness wall is a collision on the
     step whose arc reaches it: every step before ends on the start side, clear of it."""
-    env = DroneEnv("channel", seed=1, actions=[[speed, 0.0]], observe=False)
+    env = DroneEnv("channel", seed=1, actions=[[speed, 0.0]], observation=None)
     a, b, normal = _facing_wall(env)
     for _ in range(10):
-        before = np.dot(env.pose[:2] - a, normal)
-        _, reward, term, trunc, info = env.step(0)
-        side = np.dot(info["pose"][:2] - a, normal)
+        before = np.dot(env.poses[0, :2] - a, normal)
+        _, reward, term, trunc, info = env.step(np.array([0]))
+        side = np.dot(env.poses[0, :2] - a, normal)
         assert side == pytest.approx(before - speed * env.dt)    # the arc flown to its end
-        if term:
+        if term[0]:
             break
         assert side >= 0.5                                # clear of the wall, start side
-    assert term and not trunc and info["collided"] and reward == -1.0
+    assert term[0] and not trunc[0] and info["collided"][0] and reward[0] == -1.0
     assert before - speed * env.dt < 0.5                  # the arc came within 0.5 m
-    with pytest.raises(RuntimeError, match="reset"):
-        env.step(0)
+    assert not env.active[0]
 
 
 def test_step_drones_checks_the_whole_arc_and_pays_at_its_end():
@@ -424,41 +468,62 @@ def test_step_drones_checks_the_whole_arc_and_pays_at_its_end():
 
 def test_action_table_and_reward_hooks():
     env = DroneEnv("basic", seed=0, actions=[[1.0, 0.0], [1.0, 1.0]],
-                   reward_fn=lambda d, collided: 42.0 + collided, max_steps=2, observe=False)
+                   reward_fn=lambda d, collided: 42.0 + collided, max_steps=2,
+                   observation=None)
     assert DroneEnv("basic", reward_fn=None).reward_fn is paper_reward
-    assert env.action_space.n == 2
-    _, info0 = env.reset()
-    _, reward, term, trunc, info = env.step(0)
-    assert np.linalg.norm(info["pose"][:2] - info0["pose"][:2]) == pytest.approx(0.4)
-    assert reward in (42.0, 43.0)
-    if not term:
-        _, _, term, trunc, info = env.step(1)
-        assert info["pose"][2] - info0["pose"][2] == pytest.approx(0.4)
-        assert trunc != term
-
-
-@pytest.mark.parametrize("bad", [5, -1, 1.0, "0", None])
-def test_bad_action_raises(bad):
-    env = DroneEnv("basic", seed=0, observe=False)
+    assert env.n_actions == 2
     env.reset()
-    with pytest.raises(ValueError, match=r"action must be an int in \[0, 5\)"):
-        env.step(bad)
+    p0 = env.poses[0].copy()
+    _, reward, term, trunc, info = env.step(np.array([0]))
+    assert np.linalg.norm(env.poses[0, :2] - p0[:2]) == pytest.approx(0.4)
+    assert reward[0] in (42.0, 43.0)
+    if not term[0]:
+        _, _, term, trunc, info = env.step(np.array([1]))
+        assert env.poses[0, 2] - p0[2] == pytest.approx(0.4)
+        assert trunc[0] != term[0]
 
 
-def test_bad_env_configs():
-    with pytest.raises(ValueError, match="scenario must be one of"):
-        DroneEnv("moon")
-    with pytest.raises(ValueError, match="actions must have shape"):
-        DroneEnv(actions=[0.0, 0.25])
+@pytest.mark.parametrize("bad", [[5], [-1], [1.0], ["0"], [0, 0], 0])
+def test_bad_action_raises(bad):
+    env = DroneEnv("basic", seed=0, observation=None)
+    env.reset()
+    with pytest.raises(ValueError, match=r"DroneEnv.step: actions must (lie in \[0, 5\)|be an "
+                                         r"int array of shape \(1,\))"):
+        env.step(np.array(bad))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(scenario="moon"), "scenario must be one of"),
+    (dict(n_envs=0), "n_envs must be an int >= 1"),
+    (dict(worlds="valid"), "worlds must be 'train', 'test' or a sequence"),
+    (dict(worlds=[1.5]), "worlds must be 'train', 'test' or a sequence"),
+    (dict(n_worlds=0), "n_worlds"),
+    (dict(observation="gray"), "observation must be one of"),
+    (dict(observation="pred"), "depth_model"),
+    (dict(depth_model=object()), "depth_model"),
+    (dict(actions=[0.0, 0.25]), "actions must have shape"),
+    (dict(max_steps=0), "max_steps"),
+    (dict(render_mode="human"), "render_mode must be one of"),
+])
+def test_bad_env_arguments_name_the_argument(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        DroneEnv(**kwargs)
+
+
+def test_bad_env_calls():
     with pytest.raises(TypeError, match="reward_fn"):
         DroneEnv(reward_fn=3)
-    with pytest.raises(ValueError, match="max_steps"):
-        DroneEnv(max_steps=0)
-    with pytest.raises(ValueError, match="n_envs"):
-        VecDroneEnv(0)
+    with pytest.raises(TypeError, match="depth_fn"):
+        DroneEnv(depth_fn=3)
+    with pytest.raises(RuntimeError, match="reset"):
+        DroneEnv().step(np.array([0]))
     with pytest.raises(ValueError, match="unknown option"):
         DroneEnv().reset(options={"newworld": True})
-    env = VecDroneEnv(2, observe=False)
+    with pytest.raises(ValueError, match="options\\['pose'\\]"):
+        DroneEnv().reset(options={"pose": (1.0, 2.0)})
+    with pytest.raises(TypeError):
+        DroneEnv().reset(3)                                  # seed is keyword-only
+    env = DroneEnv(n_envs=2, observation=None)
     env.reset()
     with pytest.raises(ValueError, match="actions must lie in"):
         env.step(np.array([0, 7]))
@@ -466,45 +531,59 @@ def test_bad_env_configs():
         env.step(np.array([0]))
 
 
-def test_vec_env_matches_single_envs():
-    n, seed = 3, 7
-    vec = VecDroneEnv(n, "intersections", seed=seed)
-    singles = [DroneEnv("intersections", seed=[seed, i]) for i in range(n)]
-    obs, info = vec.reset()
+def test_batched_flights_match_single_flights():
+    """N flights stepped together fly, see and are paid as each flown alone from the same
+    world and start."""
+    n = 3
+    vec = DroneEnv("intersections", n, seed=7, observation="rgb")
+    vec.reset()
+    seeds, poses = vec.scene_seeds.copy(), vec.poses.copy()
+    obs, info = vec.reset(options={"scene_seed": seeds, "pose": poses})
+    singles = [DroneEnv("intersections", seed=0, observation="rgb") for _ in range(n)]
     for i, env in enumerate(singles):
-        o, inf = env.reset()
-        np.testing.assert_array_equal(obs[i], o)
-        np.testing.assert_allclose(info["pose"][i], inf["pose"])
+        o, _ = env.reset(options={"scene_seed": int(seeds[i]), "pose": poses[i]})
+        np.testing.assert_array_equal(obs[i], o[0])
     rng = np.random.default_rng(3)
     for _ in range(6):
         actions = rng.integers(0, 5, n)
         obs, reward, term, trunc, info = vec.step(actions)
         for i, env in enumerate(singles):
-            if env.done:
+            if not env.active[0]:
                 continue
-            o, r, t, tr, inf = env.step(int(actions[i]))
-            np.testing.assert_allclose(info["pose"][i], inf["pose"], atol=1e-12)
-            np.testing.assert_array_equal(obs[i], o)
-            np.testing.assert_array_equal(info["depth"][i], inf["depth"])
-            assert reward[i] == pytest.approx(r) and term[i] == t and trunc[i] == tr
-            assert info["d_nearest"][i] == pytest.approx(inf["d_nearest"], abs=1e-9)
+            o, r, t, tr, inf = env.step(actions[i:i + 1])
+            np.testing.assert_allclose(vec.poses[i], env.poses[0], atol=1e-12)
+            np.testing.assert_array_equal(obs[i], o[0])
+            assert reward[i] == pytest.approx(r[0]) and term[i] == t[0] and trunc[i] == tr[0]
+            assert info["d_nearest"][i] == pytest.approx(inf["d_nearest"][0], abs=1e-9)
 
-
-# ----------------------------------------------------------------------------- policies, pictures
 
 def test_policies():
-    env = VecDroneEnv(4, "corners", seed=0, observe=False)
-    env.reset()
-    while env.active.any():
-        _, _, _, _, info = env.step(oracle_policy(env))
-    assert not info["collided"].any()
-    env.reset()
-    while env.active.any():
-        _, _, _, _, info = env.step(straight_policy(env))
-    assert info["collided"].all()
-    acts = random_policy(np.random.default_rng(0))(env)
+    from minid3rqn.rl.policies import OraclePolicy, RandomPolicy, StraightPolicy
+    env = DroneEnv("corners", 4, seed=0, observation=None)
+    for policy, crashes in ((OraclePolicy(), False), (StraightPolicy(), True)):
+        obs, _ = env.reset()
+        policy.reset(env)
+        crashed = np.zeros(4, bool)
+        while env.active.any():
+            obs, _, term, _, _ = env.step(policy.act(obs))
+            crashed |= term
+        assert crashed.all() if crashes else not crashed.any()
+    random = RandomPolicy(env.n_actions, seed=0)
+    random.reset(env)
+    acts = random.act(None)
     assert acts.shape == (4,) and acts.dtype.kind == "i"
 
+
+def test_render_rgb_array():
+    env = DroneEnv("basic", seed=0, render_mode="rgb_array")
+    env.reset()
+    env.step(np.array([0]))
+    img = env.render()
+    assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[0] == 192
+    assert DroneEnv().render() is None
+
+
+# ----------------------------------------------------------------------------- pictures
 
 def test_pictures(scenes):
     img = topdown(scenes["basic"], trajectory=[[3, 3], [5, 4], [7, 7]], pose=(7, 7, 0.5),

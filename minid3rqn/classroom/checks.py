@@ -74,9 +74,11 @@ def find(name_or_number: str) -> Exercise:
     raise ValueError(f"unknown exercise {name_or_number!r}; choose one of: {names}")
 
 
-def _small_pool():
-    from ..rl.flights import FlightsConfig
-    return FlightsConfig(n_worlds=2)          # 2 worlds, not 32: a check must be quick
+def _env(n: int, **params):
+    """The env training, evaluation and ``fly`` fly, with the student's ``params``; a pool
+    of 2 worlds, not 32: a check must be quick."""
+    from ..world import DroneEnv
+    return DroneEnv("basic", n, seed=0, n_worlds=2, **params)
 
 
 # -- Exercise 1: the reward ------------------------------------------------------------
@@ -192,20 +194,14 @@ def _reward_changes(r, safe: dict, hit: dict, sees_yaw: bool) -> None:
 
 
 def _reward_reaches_training(r, fn) -> None:
-    """The reward reaches the environment and the training flights."""
-    from ..rl.flights import Flights
-    from ..world import DroneEnv
-    env = DroneEnv("basic", seed=0, reward_fn=fn, observe=False)
-    env.reset(seed=0)
-    _, rew, *_ = call(r, "DroneEnv(reward_fn=reward).step(0)", env.step, 0)
-    fl = Flights("basic", 4, seed=0, reward_fn=fn, config=_small_pool())
-    fl.reset()
-    res = call(r, "the training flights' step", fl.step, np.array([0, 1, 3, 4]))
-    if not (math.isfinite(rew) and np.all(np.isfinite(res.rewards))):
-        r.fail(f"in the environment and the training flights your reward gave {rew} and "
-               f"{res.rewards}", stop=True)
-    shown = [round(float(x), 3) for x in res.rewards]
-    r.ok(f"reaches the environment and the training flights (rewards {shown})")
+    """The reward reaches the environment (the one that trains and flies)."""
+    env = _env(4, reward_fn=fn, observation=None)
+    env.reset()
+    _, rewards, *_ = call(r, "DroneEnv(reward_fn=reward).step", env.step, np.array([0, 1, 3, 4]))
+    if not np.all(np.isfinite(rewards)):
+        r.fail(f"in the environment your reward gave {rewards}", stop=True)
+    shown = [round(float(x), 3) for x in rewards]
+    r.ok(f"reaches the environment that trains and flies (rewards {shown})")
 
 
 # -- Exercise 2: the action table ------------------------------------------------------
@@ -269,31 +265,29 @@ def _actions_notes(r, table: np.ndarray) -> None:
 
 
 def _actions_reach_training(r, table: np.ndarray) -> None:
-    """The table reaches the environment, the training flights and the Q-net's head."""
+    """The table reaches the environment (the one that trains and flies) and the Q-net's
+    head."""
     from ..nets.qnet import QNet
-    from ..rl.flights import Flights
     from ..rl.train import TrainConfig
-    from ..world import DroneEnv, sample_start_pose
+    from ..world import sample_start_pose
     n = len(table)
-    env = DroneEnv("basic", seed=0, actions=table, observe=False)
-    env.reset(seed=0)
-    room = sample_start_pose(env.scene, np.random.default_rng(0), env.actions, env.dt,
+    env = _env(1, actions=table, observation=None)
+    env.reset()
+    room = sample_start_pose(env.scenes[0], np.random.default_rng(0), env.actions, env.dt,
                              env.safe_distance)         # room to fly any action for a step
-    _, info0 = env.reset(seed=0, options={"pose": room})
-    _, _, term, _, info = call(r, f"DroneEnv(actions=ACTIONS).step({n - 1})", env.step, n - 1)
-    turned, want = float(info["pose"][2] - info0["pose"][2]), table[n - 1, 1] * env.dt
-    if env.action_space.n != n or (not term and abs(turned - want) > 1e-6):
-        r.fail(f"the environment sees {env.action_space.n} actions (expected {n}), and after "
+    env.reset(options={"pose": room})
+    before = env.poses[0, 2]
+    _, _, term, _, _ = call(r, f"DroneEnv(actions=ACTIONS).step([{n - 1}])", env.step,
+                            np.array([n - 1]))
+    turned, want = float(env.poses[0, 2] - before), table[n - 1, 1] * env.dt
+    if env.n_actions != n or (not term[0] and abs(turned - want) > 1e-6):
+        r.fail(f"the environment sees {env.n_actions} actions (expected {n}), and after "
                f"action {n - 1} the drone turned {turned:.3f} rad (expected {want:.3f})",
                stop=True)
-    r.ok(f"the environment flies the new action {n - 1} ({table[n - 1].tolist()}: "
-         f"turned {turned:+.2f} rad in 0.4 s)")
-    fl = Flights("basic", 2, seed=0, actions=table, config=_small_pool())
-    fl.reset()
-    call(r, "Flights(actions=ACTIONS).step", fl.step, np.array([n - 1, 0]))
-    r.ok(f"the training flights accept action {n - 1}")
-    cfg = TrainConfig(hidden=16).qnet_config(fl.n_actions, fl.frame_shape)
-    q, _ = QNet(cfg, rng=0)(np.zeros((1, 1, cfg.in_channels) + tuple(fl.frame_shape),
+    r.ok(f"the environment that trains and flies flies the new action {n - 1} "
+         f"({table[n - 1].tolist()}: turned {turned:+.2f} rad in 0.4 s)")
+    cfg = TrainConfig(hidden=16).qnet_config(env.n_actions, env.frame_shape)
+    q, _ = QNet(cfg, rng=0)(np.zeros((1, 1, cfg.in_channels) + tuple(env.frame_shape),
                                      np.float32))
     if q.shape[-1] != n:
         r.fail(f"the Q-network has {q.shape[-1]} outputs, not {n}", stop=True)
@@ -304,7 +298,6 @@ def _actions_reach_training(r, table: np.ndarray) -> None:
 @exercise(3, "fov", "Field of view: narrow the camera, D3RQN vs D3QN", "camera.py",
           "03_field_of_view.md", "agent")
 def check_fov(m, r):
-    from ..rl.flights import Flights
     from ..world import Camera
     fov = get(r, m, "HFOV_DEG")
     if isinstance(fov, bool) or not isinstance(fov, (int, float, np.integer, np.floating)):
@@ -323,10 +316,10 @@ def check_fov(m, r):
                "one is a fine extra experiment (memory should matter less)")
     if fov < 20:
         r.note(f"{fov:g} degrees is a keyhole: the drone sees about one obstacle at a time")
-    frames = Flights("basic", 2, seed=0, camera=cam, config=_small_pool()).reset()
+    frames, _ = _env(2, camera=cam).reset()
     if frames.shape != (2, 32, 104):
         r.fail(f"frames came out {frames.shape}, expected (2, 32, 104)", stop=True)
-    r.ok(f"the training flights render with your camera (each column spans "
+    r.ok(f"the environment renders with your camera (each column spans "
          f"{fov / 104:.2f} degrees instead of {90 / 104:.2f})")
     r.summary = {"hfov_deg": fov}
 
@@ -601,14 +594,12 @@ TOO_STRONG = 0.5          # std of the log-depth error above which the checker w
 def _gt_frames(flights: int = 8, steps: int = 3, seed: int = 0) -> np.ndarray:
     """GT depth maps (metres, float32 (flights * (steps + 1), 32, 104)) of a few training
     flights: their first views, then after each of ``steps`` random actions."""
-    from ..rl.flights import Flights
-    fl = Flights("basic", flights, seed=seed, config=_small_pool())
-    fl.reset()
-    out = [fl.last_depth.copy()]
+    from ..world import DroneEnv
+    env = DroneEnv("basic", flights, seed=seed, n_worlds=2, autoreset=True)
+    out = [env.reset()[0]]
     rng = np.random.default_rng(seed)
     for _ in range(steps):
-        fl.step(rng.integers(fl.n_actions, size=flights))
-        out.append(fl.last_depth.copy())
+        out.append(env.step(rng.integers(env.n_actions, size=flights))[0])
     return np.concatenate(out)
 
 
@@ -744,16 +735,16 @@ def _depth_error_size(r, fn, what: str, depth: np.ndarray, y: np.ndarray) -> Non
 
 
 def _depth_reaches_training(r, fn) -> None:
-    """The corruption reaches the training flights' frames."""
-    from ..rl.flights import Flights, depth_only
-    fl = Flights("basic", 4, seed=0, depth_fn=fn, config=_small_pool())
-    frames = call(r, "the training flights' reset, with your corrupt", fl.reset)
-    call(r, "the training flights' step, with your corrupt", fl.step, np.zeros(4, np.int64))
-    gt = depth_only(fl.batch, fl.poses, fl.camera)
+    """The corruption reaches the depth the training flights see."""
+    from ..rl.observe import encode_depth
+    env = _env(4, depth_fn=fn)
+    obs, _ = call(r, "the training env's reset, with your corrupt", env.reset)
+    frames = encode_depth(obs)
+    obs, *_ = call(r, "the training env's step, with your corrupt", env.step,
+                   np.zeros(4, np.int64))
     if not (np.all(np.isfinite(frames)) and frames.min() >= 0 and frames.max() <= 1):
-        r.fail("the training flights' frames with your corruption are not in [0, 1]",
-               stop=True)
-    changed = not np.allclose(fl.last_depth, gt, rtol=1e-6, atol=0)
+        r.fail("the Q-net's frames of your corrupted depth are not in [0, 1]", stop=True)
+    changed = not np.allclose(obs, env.gt_depth(), rtol=1e-6, atol=0)
     r.ok("reaches the training flights: the Q-net trains on " +
          ("your corrupted depth" if changed else "GT depth (unchanged)") +
          "; the test flights stay on the depth as it is")

@@ -118,10 +118,13 @@ class CountingPolicy:
             raise AttributeError(name)
         return getattr(self.inner, name)
 
-    def act(self, obs):
-        a = self.inner.act(obs)
-        live = np.asarray(obs.get("active", np.ones(len(a), bool)), bool)
-        self.counts += np.bincount(a[live], minlength=len(self.counts))
+    def reset(self, env):
+        self.env = env                     # its ``active``: the flights still flying
+        self.inner.reset(env)
+
+    def act(self, obs, started=None):
+        a = self.inner.act(obs, started)
+        self.counts += np.bincount(a[self.env.active], minlength=len(self.counts))
         return a
 
 
@@ -165,7 +168,6 @@ def run_agent_exercise(ex: Exercise, module, summary: dict | None = None, budget
     """Train, evaluate and record one run of an agent exercise (``module`` None: the
     paper's setting); ``name`` replaces "yours" in the run's name."""
     from ..rl.evaluate import evaluate_policy
-    from ..rl.flights import FlightsConfig
     from ..rl.models import actions_and_camera, load_qnet_policy
     s = agent_settings(ex, module, summary or {}, variant)
     cfg = _agent_config(ex, s, budget, seed)
@@ -196,7 +198,7 @@ def run_agent_exercise(ex: Exercise, module, summary: dict | None = None, budget
     counting = CountingPolicy(policy, len(actions))
     # ... testing: the same actions and camera, but never a corruption of the depth
     test = dict(actions=actions, camera=camera, progress=progress,
-                flights_config=FlightsConfig(n_worlds=cfg.n_worlds))
+                n_worlds=cfg.n_worlds)
     res = evaluate_policy(counting, cfg.scenario, n_flights, EVAL_SEED, **test)
     share = counting.counts / max(1, counting.counts.sum())
     result = {"exercise": ex.name, "tag": tag, "budget": budget, "seed": seed,

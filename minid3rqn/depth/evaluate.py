@@ -189,7 +189,7 @@ def errors_by_depth(pred, gt, bins=DEPTH_BINS) -> list[dict]:
     return out
 
 
-Q_NET_RANGE = (0.5, 10.0)  # metres: the depth range a Q-net reads (rl.flights clips at 10 m)
+Q_NET_RANGE = (0.5, 10.0)  # metres: the depth range a Q-net reads (rl.observe clips at 10 m)
 
 
 def log_error_parts(depth, estimate, clip=Q_NET_RANGE) -> dict:

@@ -1,7 +1,7 @@
 """Deep Q-learning for obstacle avoidance: replay of sequences, the double-Q agent, the
 training loop, batched evaluation (success rate with a Wilson interval), baselines.
 
-    flights.py   many flights at once over ``world`` (GT or predicted depth)
+    observe.py   what a Q-net reads of the env's depth: encoded, then stacked
     replay.py    episodic replay sampled as windows that never cross episodes
     agent.py     epsilon-greedy acting with recurrent state, double-Q update
     train.py     the loop (TrainConfig, train), checkpoints and exact resume
@@ -18,7 +18,7 @@ Ours, built on the above:
 """
 from .agent import Agent, AgentConfig, double_q_targets
 from .evaluate import EvalResult, clustered_interval, evaluate_policy, wilson_interval
-from .flights import Flights, FlightsConfig
+from .observe import encode_depth
 from .policies import OraclePolicy, QNetPolicy, RandomPolicy, ReactivePolicy, StraightPolicy
 from .replay import EpisodeReplay, SequenceBatch
 from .train import TrainConfig, train

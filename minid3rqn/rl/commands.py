@@ -205,7 +205,7 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
 
 
 def run_evaluate(args) -> int:
-    from .evaluate import EvalConfig, evaluate_spec
+    from .evaluate import EvalConfig, evaluate_spec, own_training_worlds
     from .models import BASELINES, load_policy
     cfg = from_args(EvalConfig, args)
     if cfg.mirror and all(spec in BASELINES for spec in args.policies):
@@ -217,6 +217,8 @@ def run_evaluate(args) -> int:
     for spec in args.policies:         # every policy readable before the first flies
         try:
             actions_and_camera(load_policy(spec))
+            if cfg.worlds == "train":
+                own_training_worlds(load_policy(spec), cfg.scenario)
         except ValueError as e:
             raise UsageError(str(e)) from None
     for spec in args.policies:

@@ -11,7 +11,7 @@ student (policy distillation, Rusu et al. 2016).
 What. ``distil`` runs ``rl.train.train`` with its own steps 1 and 4:
 
     1. act: the teacher (a Q-net file or an ensemble, 'A.npz+B.npz+...') reads the GT
-       depth frame of every flight (``Flights.gt_frames``), carrying its own recurrent
+       depth of every flight (``DroneEnv.gt_depth``), carrying its own recurrent
        state through the flight; its Q-values Q_T(o_t, .) are stored in the replay
        beside the student's frame o_t (``LabelledReplay``). The flights fly the
        teacher's greedy action with probability beta, else the student's: beta falls
@@ -171,6 +171,7 @@ class Distillation:
         self.cfg, self.teacher = cfg, teacher
         self.mirror_of = mirror_permutation(actions) if cfg.mirror_augment else None
         self.aug_rng = np.random.default_rng(aug_seed)
+        self.resumed = False
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """The teacher's memory of the flights and the augmentation's generator."""
@@ -182,14 +183,15 @@ class Distillation:
         self.teacher.load_state_dict({k[len("teacher."):]: v for k, v in state.items()
                                       if k.startswith("teacher.")})
         self.aug_rng.bit_generator.state = json.loads(str(state["aug_rng"]))
+        self.resumed = True
 
     def mix_at(self, step: int) -> float:
         """beta: linear from ``teacher_mix`` to 0 over ``teacher_mix_steps`` transitions."""
         return self.cfg.teacher_mix * (1.0 - min(1.0, step / self.cfg.teacher_mix_steps))
 
     def act(self, run: Run) -> np.ndarray:
-        started = run.flights.t == 0                     # flights that have just begun
-        teacher_a = self.teacher.act({"frames": run.flights.gt_frames()}, started=started)
+        started = run.env.steps == 0                     # flights that have just begun
+        teacher_a = self.teacher.act(run.env.gt_depth(), started=started)
         run.replay.label_latest(self.teacher.last_q)     # Q_T(o_t, .)
         q, run.state = run.agent.q_values(run.stacker.obs, run.state)
         student_a = np.argmax(q, axis=1)
@@ -246,7 +248,6 @@ def distil(cfg: DistilConfig, out_dir, depth_estimator=None, *, progress: bool =
     actions = np.asarray(ACTIONS if t.actions is None else t.actions, dtype=np.float64)
     cam = Camera(hfov_deg=t.hfov_deg)
     teacher = load_teacher(cfg.teachers, (cam.height, cam.width), len(actions))
-    teacher.reset(t.n_envs)
     # the fifth stream of the run's seed (rl.train draws from the first four)
     steps = Distillation(cfg, teacher, actions, np.random.SeedSequence(t.seed).spawn(5)[4])
 
@@ -256,4 +257,6 @@ def distil(cfg: DistilConfig, out_dir, depth_estimator=None, *, progress: bool =
                     extra={"distillation": steps},
                     load_init=_widen if cfg.init_widen else None,
                     settings={**flat_settings(as_dict(cfg)), **(settings or {})})
+    if not steps.resumed:                 # a resumed teacher has its memory back
+        teacher.reset(run.env)
     return train(t, out_dir, progress=progress, run=run, act=steps.act, learn=steps.learn)

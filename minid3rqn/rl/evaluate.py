@@ -43,8 +43,10 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..config import ConfigError, at_least, setting, shell_command, validate
-from .flights import Flights, FlightsConfig
+from ..world import DroneEnv
 from .policies import Policy
+
+TEST_WORLDS = 271828            # the evaluation seed of the test worlds (docs/results.md)
 
 
 def _wilson(p: float, n: float, z: float) -> tuple[float, float]:
@@ -175,29 +177,27 @@ def by_world(success, world_seed) -> ByWorld:
     return ByWorld(seeds, y, m, lo, hi, deff)
 
 
-def run_flights(policy: Policy, flights: Flights, max_steps: int, record=None) -> np.ndarray:
-    """Fly every flight of ``flights`` once (from ``reset``), return steps survived (n,).
+def run_flights(policy: Policy, env: DroneEnv, max_steps: int, record=None) -> np.ndarray:
+    """Fly every flight of ``env`` once (from ``reset``), return steps survived (n,).
 
-    ``record(step, obs, actions, result)`` is called each step if given (for GIFs).
+    ``record(step, seen, actions, terminated)`` is called after each step if given (for
+    GIFs): ``seen`` holds the observation the actions were chosen from ("obs"), the poses
+    they were flown from ("poses") and the RGB frames ("rgb": None unless rendered).
     """
-    n = flights.n
-    frames = flights.reset()
-    policy.reset(n)
-    alive = np.ones(n, bool)
-    steps = np.zeros(n, dtype=np.int64)
+    obs, _ = env.reset()
+    policy.reset(env)
+    alive = np.ones(env.n_envs, bool)
+    steps = np.zeros(env.n_envs, dtype=np.int64)
     for t in range(max_steps):
-        obs = {"frames": frames, "depth": flights.last_depth, "flights": flights,
-               "active": alive}
         if record is not None:      # the recorder sees the view the action was chosen from
-            obs = {**obs, "depth": flights.last_depth.copy(), "poses": flights.poses.copy(),
-                   "rgb": None if flights.last_rgb is None else flights.last_rgb.copy()}
+            seen = {"obs": obs, "poses": env.poses.copy(),
+                    "rgb": None if env.last_rgb is None else env.last_rgb.copy()}
         actions = policy.act(obs)
-        res = flights.step(actions, active=alive)
+        obs, _, terminated, _, _ = env.step(actions)
         if record is not None:
-            record(t, obs, actions, res)
-        alive &= ~res.terminated
+            record(t, seen, actions, terminated)
+        alive &= ~terminated
         steps[alive] += 1                # actions completed without a collision
-        frames = res.frames
         if not alive.any():
             break
     return steps
@@ -211,21 +211,21 @@ def _chunk_seeds(seed: int, n_flights: int, chunk: int) -> list[tuple[int, int]]
             for start, c in zip(range(0, n_flights, chunk), children)]
 
 
-def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, cfg: FlightsConfig,
-               depth: str, depth_estimator, max_steps: int, flights_factory=Flights,
+def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, worlds, n_worlds: int,
+               observation: str, depth_model, max_steps: int, env_factory=DroneEnv,
                actions=None, camera=None) -> tuple[np.ndarray, np.ndarray]:
-    """Steps survived by the ``n`` flights of one chunk (world seed ``child``), and the
-    seed of the world each flew in (its identity: the same seed is the same world)."""
+    """Steps survived by the ``n`` flights of one chunk (seed ``child``), and the seed of
+    the world each flew in (its identity: the same seed is the same world)."""
     # A policy with a random generator (Random, an epsilon-greedy Q-net) draws from one
     # seeded by the chunk: a chunk's result is the same in any process, in any order.
     # (A duck-typed policy without ``reseed`` keeps its own generator.)
     if hasattr(policy, "reseed"):
         policy.reseed((child, 0x5EED))
-    flights = flights_factory(scenario, n, seed=child, config=cfg, depth=depth,
-                              depth_estimator=depth_estimator, autoreset=False,
-                              actions=actions, camera=camera)
-    steps = run_flights(policy, flights, max_steps)
-    return steps, np.asarray(flights.world_seeds, dtype=np.int64)[flights.world_of]
+    env = env_factory(scenario, n, seed=child, worlds=worlds, n_worlds=n_worlds,
+                      observation=observation, depth_model=depth_model, max_steps=max_steps,
+                      actions=actions, camera=camera)
+    steps = run_flights(policy, env, max_steps)
+    return steps, env.scene_seeds.copy()
 
 
 _FORKED = None       # what the chunks are flown with (set for the length of one evaluation,
@@ -239,22 +239,24 @@ def _fly_chunk_forked(task):
 
 def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 2000,
                     seed: int = 12345, max_steps: int = 50, chunk: int = 500,
-                    depth: str = "gt", depth_estimator=None,
-                    flights_config: FlightsConfig | None = None,
-                    progress: bool = True, workers: int = 1,
-                    flights_factory=None, actions=None, camera=None) -> EvalResult:
+                    depth: str = "gt", depth_estimator=None, n_worlds: int = 32,
+                    progress: bool = True, workers: int = 1, env_factory=None,
+                    actions=None, camera=None, worlds="test") -> EvalResult:
     """Success rate of ``policy`` over ``n_flights`` fresh flights (greedy, batched).
 
     The flights are flown ``chunk`` at a time, each chunk from its own seed
-    (``_chunk_seeds``) with its own pool of worlds: the worlds flown depend on ``chunk``
-    as on ``seed`` (``evaluate --json`` records both). ``workers`` > 1 flies the chunks in that many processes (one
-    per core; forked, so the policy and the depth network are shared, not pickled):
-    the result is the same as with one. ``flights_factory`` (default ``Flights``) makes
-    each chunk's flights from ``Flights``'s arguments: a subclass that changes what the
-    policy sees (``examples/07_which_depth_errors_matter.py``) is flown the same way.
-    The flights' worlds come from the evaluation seed range (``FlightsConfig.test_worlds``).
-    ``actions``, ``camera``: the flights' (default: those the policy's Q-nets
-    were trained with, recorded in their files; else the world's).
+    (``_chunk_seeds``) with its own pool of ``n_worlds`` worlds: the worlds flown depend
+    on ``chunk`` as on ``seed`` (``evaluate --json`` records both). ``worlds``: "test"
+    (the evaluation seed range), or a sequence of world seeds every chunk flies (the
+    paper's protocol: a model's own training worlds, ``training_worlds``). ``depth``:
+    "gt" or "pred" (the DispNet ``depth_estimator``). ``workers`` > 1 flies the chunks
+    in that many processes (one per core; forked, so the policy and the depth network
+    are shared, not pickled): the result is the same as with one. ``env_factory``
+    (default ``DroneEnv``) makes each chunk's env from ``DroneEnv``'s arguments: a
+    subclass that changes what the policy sees
+    (``examples/07_which_depth_errors_matter.py``) is flown the same way. ``actions``,
+    ``camera``: the flights' (default: those the policy's Q-nets were trained with,
+    recorded in their files; else the world's).
     """
     if n_flights < 1:
         raise ValueError(f"evaluate_policy: n_flights must be >= 1; got {n_flights}")
@@ -265,10 +267,8 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     if actions is None and camera is None:
         from .models import actions_and_camera
         actions, camera = actions_and_camera(policy)
-    cfg = flights_config or FlightsConfig()
-    cfg = FlightsConfig(**{**asdict(cfg), "max_steps": max_steps,
-                           "test_worlds": True,
-                           "n_worlds": min(cfg.n_worlds, chunk, n_flights)})
+    n_worlds = min(n_worlds, chunk, n_flights)
+    observation = {"gt": "depth", "pred": "pred"}[depth]
     tasks = _chunk_seeds(seed, n_flights, chunk)
     workers = min(workers, len(tasks))
     if workers > 1 and "fork" not in mp.get_all_start_methods():
@@ -282,8 +282,8 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
         bar = tqdm(total=n_flights, unit="flight", desc=f"eval {policy.name} {scenario}",
                    dynamic_ncols=True, leave=False)
     global _FORKED
-    _FORKED = (policy, scenario, cfg, depth, depth_estimator, max_steps,
-               flights_factory or Flights, actions, camera)
+    _FORKED = (policy, scenario, worlds, n_worlds, observation, depth_estimator, max_steps,
+               env_factory or DroneEnv, actions, camera)
     survived, world = [], []
     try:
         with (mp.get_context("fork").Pool(workers) if workers > 1 else nullcontext()) as pool:
@@ -320,6 +320,10 @@ class EvalConfig:
                             choices=("basic", "channel", "intersections", "corners"))
     seed: int = setting(12345, "the test worlds' seed", source="run",
                         check=at_least(0))
+    worlds: str = setting("test", "test: fresh worlds, unseen in training; train: the Q-net's "
+                                  "own training worlds (the paper's protocol: it tests in "
+                                  "the world it trained in)", source="run",
+                          choices=("test", "train"))
     depth: str = setting("gt", "what the policies read: GT depth or the DispNet's",
                          source="run", choices=("gt", "pred"))
     depth_model: str = setting("", "DispNet .npz for --depth pred (empty: the shipped one "
@@ -346,6 +350,31 @@ class EvalConfig:
                                   "the DispNet's disparity)")
 
 
+def own_training_worlds(policy, scenario: str) -> np.ndarray:
+    """The world seeds a Q-net policy trained in, from its file's ``train_config``
+    (``train.training_worlds``; the run that wrote the file, not the one it was
+    initialised from). ValueError for a baseline, nets of different worlds, or another
+    scenario than theirs."""
+    from .train import training_worlds
+    nets = [m for m in getattr(policy, "members", [policy]) if hasattr(m, "meta")]
+    if not nets:
+        raise ValueError("--worlds train: flies a Q-net's own training worlds; a baseline "
+                         "has none (use --worlds test)")
+    pools = set()
+    for m in nets:
+        trained = m.meta.get("train_config") or {}
+        if trained.get("scenario", "basic") != scenario:
+            raise ValueError(f"--worlds train: {m.name!r} trained in "
+                             f"{trained.get('scenario')!r} worlds, not {scenario!r}; give "
+                             f"--scenario {trained.get('scenario')}")
+        pools.add(tuple(training_worlds(trained.get("seed", 0),
+                                        trained.get("n_worlds") or 32).tolist()))
+    if len(pools) > 1:
+        raise ValueError("--worlds train: needs nets trained in the same worlds (one seed); "
+                         "these trained in different ones")
+    return np.array(pools.pop(), np.int64)
+
+
 def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
                   progress: bool = True) -> tuple[EvalResult, dict]:
     """What ``evaluate SPEC`` does: fly the policy ``spec`` (``models.load_policy``;
@@ -354,13 +383,16 @@ def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
     from ..config import command_line
     from .models import BASELINES, load_policy, unfinished_warning
     pol = load_policy(spec, cfg.seed, mirror=cfg.mirror)
+    worlds = "test" if cfg.worlds == "test" else own_training_worlds(pol, cfg.scenario)
     warning = unfinished_warning(pol)
     if warning:
         print(warning, file=sys.stderr, flush=True)
     res = evaluate_policy(pol, cfg.scenario, cfg.flights, cfg.seed, cfg.steps, cfg.chunk,
-                          cfg.depth, depth_estimator, progress=progress, workers=cfg.workers)
+                          cfg.depth, depth_estimator, progress=progress, workers=cfg.workers,
+                          worlds=worlds)
     flip = depth_estimator is not None and cfg.flip_tta
-    how = [f"{cfg.depth} depth"] + (["flip"] if flip else [])
+    how = [f"{cfg.depth} depth"] + (["flip"] if flip else []) + \
+        (["its training worlds"] if cfg.worlds == "train" else [])
     if spec not in BASELINES:
         what = f"  {spec} ({', '.join(how + (['mirror'] if cfg.mirror else []))})"
     else:                                     # of these only the reactive rule reads depth
@@ -369,5 +401,6 @@ def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
     command = shell_command(["evaluate", spec, *command_line(EvalConfig, cfg)])
     record = {**res.to_dict(), "spec": spec, "depth_flip": bool(flip),
               "mirror": bool(cfg.mirror and spec not in BASELINES), "chunk": cfg.chunk,
+              "worlds_set": cfg.worlds,
               "unfinished": warning is not None, "command": command}
     return res, record

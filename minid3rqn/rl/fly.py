@@ -13,11 +13,11 @@ import numpy as np
 
 from .. import viz
 from ..config import at_least, setting, validate
-from ..world import render_batch, topdown
+from ..world import DroneEnv, render_batch, topdown
 from .evaluate import by_world, run_flights, wilson_interval
-from .flights import Flights, FlightsConfig
 from .mirror import MirroredPolicy
 from .models import actions_and_camera, load_qnet_policy
+from .observe import MAX_DEPTH
 from .policies import EnsemblePolicy
 
 
@@ -67,44 +67,43 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
         members += [MirroredPolicy(m) for m in members]
     policy = members[0] if len(members) == 1 else EnsemblePolicy(members)
     depth = "pred" if depth_estimator is not None else "gt"
-    flights = Flights(scenario, n_flights, seed=seed, depth=depth,
-                      depth_estimator=depth_estimator, autoreset=False, camera=camera,
-                      actions=actions,
-                      config=FlightsConfig(max_steps=max_steps, test_worlds=True))
+    env = DroneEnv(scenario, n_flights, seed=seed, worlds="test",
+                   observation="pred" if depth == "pred" else "depth",
+                   depth_model=depth_estimator, camera=camera, actions=actions,
+                   max_steps=max_steps)
     names = action_names(actions)
     frames_out, path, crashed = [], [], [False]
-    max_depth = flights.cfg.max_depth
 
-    def record(t, obs, actions, res):
+    def record(t, seen, actions, terminated):
         k = 0                                   # the GIF follows flight 0
         if crashed[0] or (t > 0 and not path):
             return
-        scene = flights.scene_of(k)
+        scene = env.scenes[k]
         if not path:
-            path.append(obs["poses"][k])
-        rgb = obs["rgb"][k] if obs["rgb"] is not None else \
-            render_batch(scene, obs["poses"][k:k + 1], flights.camera)[0][0]
+            path.append(seen["poses"][k])
+        rgb = seen["rgb"][k] if seen["rgb"] is not None else \
+            render_batch(scene, seen["poses"][k:k + 1], env.camera)[0][0]
         bars = viz.bar_chart(policy.last_q[k], names, (160, 120), int(actions[k]),
                              title=f"Q-values, step {t + 1}")
-        depth = viz.resize(viz.depth_to_rgb(obs["depth"][k], 0.5, max_depth), 192 - 24)
-        key = viz.depth_key(depth.shape[1], 0.5, max_depth, height=24)    # metres
+        depth = viz.resize(viz.depth_to_rgb(seen["obs"][k], 0.5, MAX_DEPTH), 192 - 24)
+        key = viz.depth_key(depth.shape[1], 0.5, MAX_DEPTH, height=24)    # metres
         panels = [rgb, np.concatenate([depth, key]), bars]
-        top = np.asarray(topdown(scene, np.array(path), obs["poses"][k], flights.camera, 192))
+        top = np.asarray(topdown(scene, np.array(path), seen["poses"][k], env.camera, 192))
         frames_out.append(viz.hstack([top] + panels, 192))
-        path.append(flights.poses[k].copy())
-        if res.terminated[k]:
+        path.append(env.poses[k].copy())
+        if terminated[k]:
             crashed[0] = True
-            top = np.asarray(topdown(scene, np.array(path), path[-1], flights.camera, 192))
+            top = np.asarray(topdown(scene, np.array(path), path[-1], env.camera, 192))
             frames_out.append(viz.label(viz.hstack([top] + panels, 192), "COLLISION",
                                         (200, 4), (255, 40, 40)))
 
-    survived = run_flights(policy, flights, max_steps, record=record)
+    survived = run_flights(policy, env, max_steps, record=record)
     success = survived >= max_steps
     k = int(success.sum())
     lo, hi = wilson_interval(k, n_flights)
     # the flights share a pool of worlds: the interval by world (rl/evaluate.py) is the
     # one to read for "how well does it fly this scenario", and it is wider
-    w = by_world(success, np.asarray(flights.world_seeds)[flights.world_of])
+    w = by_world(success, env.scene_seeds)
     one_world = len(w.flights) < 2          # then there is no interval by world
     gif = viz.write_gif(frames_out, gif, fps=4)
     return {"scenario": scenario, "seed": seed, "flights": n_flights, "successes": k,

@@ -49,13 +49,12 @@ class MirroredPolicy(Policy):
                              f"actions; the net scores {policy.qnet.config.n_actions}")
         self.last_q = None
 
-    def reset(self, n: int) -> None:
-        self.n = n
-        self.inner.reset(n)
+    def reset(self, env) -> None:
+        self.n = env.n_envs
+        self.inner.reset(env)
 
     def act(self, obs, started=None):
-        frames = np.ascontiguousarray(np.asarray(obs["frames"], np.float32)[..., ::-1])
-        self.inner.act({**obs, "frames": frames}, started)
+        self.inner.act(np.ascontiguousarray(np.asarray(obs)[..., ::-1]), started)
         self.last_q = self.inner.last_q[:, self.mirror_of]
         return np.argmax(self.last_q, axis=1).astype(np.int64)
 

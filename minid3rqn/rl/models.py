@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import MODELS
-from .flights import TEST_WORLDS
+from .evaluate import TEST_WORLDS
 from .policies import _trained, trained_actions, trained_camera
 
 SHIPPED_QNET = MODELS / "d3rqn_basic.npz"
@@ -222,6 +222,7 @@ def _evaluations(model: Path, records) -> list[dict]:
                      "worlds": r["worlds"], "ci95_by_world": [r["ci_low_worlds"],
                                                               r["ci_high_worlds"]],
                      "design_effect": r["design_effect"], "worlds_set":
+                         "train" if r.get("worlds_set") == "train" else
                          "test" if r["seed"] == TEST_WORLDS else "validation",
                      "mirror": r["mirror"], "flip_tta": r["depth_flip"]})
     if not rows:

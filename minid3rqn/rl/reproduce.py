@@ -39,7 +39,7 @@ from pathlib import Path
 from ..config import at_least, setting, validate
 from .distill import DistilConfig, distil, student
 from .evaluate import EvalConfig, evaluate_spec
-from .flights import TEST_WORLDS
+from .evaluate import TEST_WORLDS
 from .models import MODELS, command_for, load_depth_estimator, save_trained
 from .train import SMOKE, TrainConfig, train
 

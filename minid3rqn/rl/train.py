@@ -4,9 +4,11 @@
 
     1. act: epsilon-greedy on the online net; the recurrent state advances for every
        flight (whichever action is taken), and is zeroed when a flight starts anew;
-    2. step the flights: one action each (0.4 s), reward (Eq. 4), next depth frame;
+    2. step the flights (``world.DroneEnv``): one action each (0.4 s), reward (Eq. 4),
+       the next depth map, encoded for the Q-net (``rl.observe.encode_depth``);
     3. store (a, r, collision, o') in the flight's replay stream; a finished flight
-       (collision, or the 50-step limit: not terminal) restarts in a new world;
+       (collision, or the 50-step limit: not terminal) restarts in a new world, and its
+       frame stack (``agent.FrameStacker``) starts again;
     4. learn: after ``learning_starts`` transitions, ``updates_per_step`` double-Q
        updates per step, each on ``batch_size`` windows of ``seq_len`` steps;
     5. log a learning-curve row every ``log_every`` transitions;
@@ -31,8 +33,9 @@ from ..config import (ConfigError, as_dict, at_least, between, changed_settings,
                       positive, setting, validate)
 from ..io import RunStopped, StopRequest, load_npz, reading_checkpoint, save_npz
 from ..nets.qnet import QNetConfig
+from ..world import DroneEnv
 from .agent import Agent, AgentConfig, FrameStacker
-from .flights import Flights, FlightsConfig
+from .observe import encode_depth
 from .replay import EpisodeReplay
 
 RECURRENT = ("ddrqn", "d3rqn")
@@ -132,6 +135,19 @@ class TrainConfig:
                                       n_actions=n_actions, width=self.hidden, **extra)
 
 
+def run_seeds(seed: int) -> list[int]:
+    """The seeds of a run's networks, worlds, exploration and replay sampling: the
+    first four children of ``SeedSequence(seed)``."""
+    return [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(4)]
+
+
+def training_worlds(seed: int, n_worlds: int = 32) -> np.ndarray:
+    """The world seeds a run of ``seed`` trains in (its env's pool; ``evaluate --worlds
+    train`` flies them, the paper's protocol)."""
+    from ..world.env import draw_worlds
+    return draw_worlds("train", np.random.default_rng(run_seeds(seed)[1]), n_worlds)
+
+
 def epsilon_at(cfg: TrainConfig, step: int) -> float:
     """Linear from eps_start to eps_end over eps_decay_steps transitions, then flat."""
     frac = min(1.0, step / max(1, cfg.eps_decay_steps))
@@ -139,10 +155,10 @@ def epsilon_at(cfg: TrainConfig, step: int) -> float:
 
 
 class Run:
-    """Everything a training run holds: the flights, the agent, the replay, the frame
-    stacks and recurrent state of the flights, the counters and the learning curve.
+    """Everything a training run holds: the flights (``env``), the agent, the replay, the
+    frame stacks and recurrent state of the flights, the counters and the learning curve.
 
-    ``reward_fn``, ``depth_fn``: the flights' (``Flights``); ``td_target``: the agent's;
+    ``reward_fn``, ``depth_fn``: the env's (``world.DroneEnv``); ``td_target``: the agent's;
     ``replay``: makes the replay, ``(capacity, n_streams, frame_shape, seed)``;
     ``extra``: more state for the checkpoint, {name: object with ``state_dict`` and
     ``load_state_dict``}; ``settings``: what a resumed run must share with its
@@ -155,16 +171,15 @@ class Run:
         from ..world import Camera
         self.cfg, self.out = cfg, Path(out_dir)
         self.settings = {**flat_settings(as_dict(cfg)), **(settings or {})}
-        ss = np.random.SeedSequence(cfg.seed)
-        net_seed, world_seed, act_seed, replay_seed = (int(s.generate_state(1)[0])
-                                                       for s in ss.spawn(4))
-        self.flights = Flights(cfg.scenario, cfg.n_envs, seed=world_seed,
-                               config=FlightsConfig(n_worlds=cfg.n_worlds), depth=cfg.depth,
-                               depth_estimator=depth_estimator,
-                               camera=Camera(hfov_deg=cfg.hfov_deg), actions=cfg.actions,
-                               reward_fn=reward_fn, depth_fn=depth_fn)
-        shape = self.flights.frame_shape
-        self.agent = Agent(cfg.qnet_config(self.flights.n_actions, shape), cfg.agent,
+        net_seed, world_seed, act_seed, replay_seed = run_seeds(cfg.seed)
+        self.env = DroneEnv(cfg.scenario, cfg.n_envs, seed=world_seed, worlds="train",
+                            n_worlds=cfg.n_worlds,
+                            observation={"gt": "depth", "pred": "pred"}[cfg.depth],
+                            depth_model=depth_estimator if cfg.depth == "pred" else None,
+                            camera=Camera(hfov_deg=cfg.hfov_deg), actions=cfg.actions,
+                            reward_fn=reward_fn, depth_fn=depth_fn, autoreset=True)
+        shape = self.env.frame_shape
+        self.agent = Agent(cfg.qnet_config(self.env.n_actions, shape), cfg.agent,
                            rng=net_seed, td_target=td_target)
         self.replay = replay(cfg.replay_capacity, cfg.n_envs, shape, seed=replay_seed)
         self.rng = np.random.default_rng(act_seed)
@@ -181,7 +196,7 @@ class Run:
 
     def start(self) -> None:
         """Every flight takes off; its first frame opens its replay stream."""
-        frames = self.flights.reset()
+        frames = encode_depth(self.env.reset()[0])
         self.replay.start_episodes(np.arange(self.cfg.n_envs), frames)
         self.stacker.reset(np.arange(self.cfg.n_envs), frames)
         self.state = self.agent.initial_state(self.cfg.n_envs)
@@ -190,13 +205,13 @@ class Run:
         """A number for the next learning-curve row (the mean of those noted)."""
         self.notes.setdefault(key, []).append(float(value))
 
-    def episodes_end(self, res, done: np.ndarray) -> None:
+    def episodes_end(self, rewards, success, done: np.ndarray) -> None:
         """Note the finished flights' return, success and length; count the rest."""
-        self.returns += res.rewards
+        self.returns += rewards
         self.lengths += 1
         for i in np.flatnonzero(done):
             self.note("return", self.returns[i])
-            self.note("success", res.success[i])
+            self.note("success", success[i])
             self.note("length", self.lengths[i])
         self.returns[done], self.lengths[done] = 0, 0
         self.episodes += int(done.sum())
@@ -237,7 +252,7 @@ class Run:
         return self.agent.online.save(path, meta)
 
     def save_checkpoint(self) -> Path:
-        parts = {"agent": self.agent, "replay": self.replay, "flights": self.flights,
+        parts = {"agent": self.agent, "replay": self.replay, "env": self.env,
                  **self.extra}
         arrays = {f"{name}.{k}": v for name, part in parts.items()
                   for k, v in part.state_dict().items()}
@@ -249,7 +264,7 @@ class Run:
                 "update_credit": self.update_credit, "curve": self.curve, "notes": self.notes,
                 "rng": json.dumps(self.rng.bit_generator.state),
                 "replay_rng": json.dumps(self.replay.rng.bit_generator.state),
-                "flights_meta": self.flights.meta_state()}
+                "env_meta": self.env.meta_state()}
         path = save_npz(self.out / "checkpoint.npz", arrays, meta)
         self.save_model(self.out / "model.npz")
         return path
@@ -267,7 +282,7 @@ class Run:
         with reading_checkpoint(self.out / "checkpoint.npz"):
             self.agent.load_state_dict(part("agent"))
             self.replay.load_state_dict(part("replay"))
-            self.flights.load_state_dict(part("flights"), meta["flights_meta"])
+            self.env.load_state_dict(part("env"), meta["env_meta"])
             for name, obj in self.extra.items():
                 obj.load_state_dict(part(name))
             self.stacker.buf[...] = arrays["stacker"]
@@ -368,19 +383,21 @@ def train(cfg: TrainConfig, out_dir, depth_estimator=None, *, reward_fn=None, de
         while run.steps < cfg.steps and not stop.requested:
             # 1. act
             actions = act(run)
-            # 2. step the flights
-            res = run.flights.step(actions)
-            done = res.terminated | res.truncated
+            # 2. step the flights; what the Q-net reads of the depth they see
+            obs, rewards, terminated, truncated, info = run.env.step(actions)
+            done = terminated | truncated
+            final = encode_depth(info["final_obs"])     # before a finished flight restarts
+            frames = final.copy()
+            frames[done] = encode_depth(obs[done])      # a new episode's first frame
             # 3. store the transitions; a finished flight starts a new episode
-            run.replay.add_step(actions, res.rewards, res.terminated, res.truncated,
-                                res.final_frames)
-            run.episodes_end(res, done)
+            run.replay.add_step(actions, rewards, terminated, truncated, final)
+            run.episodes_end(rewards, info["is_success"], done)
             if done.any():
-                run.replay.start_episodes(np.flatnonzero(done), res.frames[done])
+                run.replay.start_episodes(np.flatnonzero(done), frames[done])
                 run.state = run.agent.reset_state(run.state, done)
-            run.stacker.push(res.frames[~done], np.flatnonzero(~done))
+            run.stacker.push(frames[~done], np.flatnonzero(~done))
             if done.any():
-                run.stacker.reset(np.flatnonzero(done), res.frames[done])
+                run.stacker.reset(np.flatnonzero(done), frames[done])
             run.steps += cfg.n_envs
             # 4. learn from windows of the replay
             if run.steps >= cfg.learning_starts:

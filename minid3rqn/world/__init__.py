@@ -2,17 +2,16 @@
 
 Flow: ``make_scene`` builds a world (pymunk shapes + NumPy arrays); ``render`` /
 ``render_batch`` ray-cast RGB and ground-truth depth through a ``Camera``; ``step_drones``
-steps every drone (the arc flown, collision, reward), and ``VecDroneEnv`` / ``DroneEnv``
-are the environment around it; the policies fly baselines; ``topdown`` draws a map.
+steps every drone (the arc flown, collision, reward), and ``DroneEnv`` (N flights, or
+one) is the environment around it, the only one; ``topdown`` draws a map.
 """
 from .camera import Camera
 from .distance import (ClearanceField, clearance_field, nearest_distance, nearest_distance_batch,
                        sample_start_pose)
-from .env import Discrete, DroneEnv, VecDroneEnv
+from .env import DroneEnv
 from .geometry import (backproject, inverse_warp_numpy, pose_to_camera_transform, project,
                        relative_transform)
 from .kinematics import (ACTION_INTERVAL, ACTIONS, SAFE_DISTANCE, integrate_arc, paper_reward)
-from .policies import Oracle, oracle_policy, random_policy, straight_policy
 from .renderer import render, render_batch, render_depth_batch
 from .scenarios import SCENARIOS, make_scene
 from .scene import Scene, SceneBatch
@@ -26,6 +25,5 @@ __all__ = [
     "ClearanceField", "clearance_field", "sample_start_pose", "pose_to_camera_transform",
     "relative_transform", "backproject", "project", "inverse_warp_numpy", "ACTIONS",
     "ACTION_INTERVAL", "SAFE_DISTANCE", "integrate_arc", "paper_reward", "step_drones",
-    "Discrete", "DroneEnv", "VecDroneEnv", "straight_policy", "random_policy", "Oracle",
-    "oracle_policy", "topdown", "depth_to_rgb",
+    "DroneEnv", "topdown", "depth_to_rgb",
 ]

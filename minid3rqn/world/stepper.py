@@ -1,7 +1,7 @@
 """One step of m drones at once: fly the arc, check for collision, pay the reward.
 
-Every flight in the package is stepped here (``env.VecDroneEnv``, ``env.DroneEnv`` and
-the Q-learning flights, ``rl.flights.Flights``); what it observes afterwards is theirs:
+Every flight in the package is stepped here, through ``env.DroneEnv``; what a flight
+observes afterwards is the env's:
 
     1. fly: the chosen action (v, omega) is held for dt seconds along the exact arc
        (``kinematics.integrate_arc``), sampled at S equally spaced points no more than
