@@ -177,6 +177,20 @@ def main(argv=None):
     vec.reset()
     sec_vec = time_steps(vec, lambda: act.integers(0, 5, n), max(1, int(3 * k))) / n
     rows.append((f"DroneEnv.step, {n} flights (per frame)", 1 / sec_vec, sec_vec))
+    try:                             # the same batch through Gymnasium's vector form,
+        import gymnasium             # which restarts finished flights within the step:
+        import minid3rqn.gym         # against the env that does the same
+        auto = DroneEnv(args.scenario, n, seed=args.seed, observation="rgb", autoreset=True)
+        envs = gymnasium.make_vec(minid3rqn.gym.ENV_ID, num_envs=n, observation="rgb",
+                                  vectorization_mode="vector_entry_point", seed=args.seed)
+        for name, e in ((f"DroneEnv(autoreset=True).step, {n} flights", auto),
+                        (f"gymnasium.make_vec(...).step, {n} flights", envs)):
+            e.reset()
+            sec = best_time(lambda: e.step(act.integers(0, 5, n)), max(8, int(24 * k)),
+                            reps) / n
+            rows.append((f"{name} (per frame, restarts included)", 1 / sec, sec))
+    except ImportError:
+        pass
     sec_start = best_time(lambda: sample_start_pose(scene, rng), int(20 * k) or 3, reps)
     rows.append(("sample_start_pose (a reset's start pose)", 1 / sec_start, sec_start))
 

@@ -351,28 +351,24 @@ class EvalConfig:
 
 
 def own_training_worlds(policy, scenario: str) -> np.ndarray:
-    """The world seeds a Q-net policy trained in, from its file's ``train_config``
-    (``train.training_worlds``; the run that wrote the file, not the one it was
-    initialised from). ValueError for a baseline, nets of different worlds, or another
-    scenario than theirs."""
+    """The world seeds a Q-net policy trained in (``train.training_worlds`` of its file's
+    ``train_config``: the run that wrote it, not the one it started from). ValueError
+    for a baseline, for nets of different worlds, or for another scenario than theirs."""
     from .train import training_worlds
-    nets = [m for m in getattr(policy, "members", [policy]) if hasattr(m, "meta")]
-    if not nets:
-        raise ValueError("--worlds train: flies a Q-net's own training worlds; a baseline "
-                         "has none (use --worlds test)")
-    pools = set()
-    for m in nets:
-        trained = m.meta.get("train_config") or {}
-        if trained.get("scenario", "basic") != scenario:
-            raise ValueError(f"--worlds train: {m.name!r} trained in "
-                             f"{trained.get('scenario')!r} worlds, not {scenario!r}; give "
-                             f"--scenario {trained.get('scenario')}")
-        pools.add(tuple(training_worlds(trained.get("seed", 0),
-                                        trained.get("n_worlds") or 32).tolist()))
-    if len(pools) > 1:
-        raise ValueError("--worlds train: needs nets trained in the same worlds (one seed); "
-                         "these trained in different ones")
-    return np.array(pools.pop(), np.int64)
+    trained = [m.meta.get("train_config") or {} for m in getattr(policy, "members", [policy])
+               if hasattr(m, "meta")]
+    pools = {tuple(training_worlds(t.get("seed", 0), t.get("n_worlds") or 32).tolist())
+             for t in trained}
+    where = {t.get("scenario", "basic") for t in trained}
+    if not pools:
+        why = "a baseline has none"
+    elif len(pools) > 1:
+        why = "these nets trained in different ones"
+    elif where != {scenario}:
+        why = f"it trained in {where.pop()!r} worlds, not {scenario!r}"
+    else:
+        return np.array(pools.pop(), np.int64)
+    raise ValueError(f"--worlds train: flies a Q-net's own training worlds; {why}")
 
 
 def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,

@@ -41,7 +41,9 @@ def trained_camera(meta: dict | None):
     from ..world import Camera
     return Camera(hfov_deg=float(_trained(meta).get("hfov_deg", 90.0)))
 
+
 class Policy:
+    """The protocol (module docstring)."""
     name = "policy"
 
     def reset(self, env) -> None:
@@ -53,7 +55,7 @@ class Policy:
         if hasattr(self, "rng"):
             self.rng = np.random.default_rng(seed)
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs, started=None) -> np.ndarray:
         raise NotImplementedError
 
 

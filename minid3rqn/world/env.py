@@ -4,39 +4,31 @@
     obs, info = env.reset(seed=None, options=None)
     obs, reward, terminated, truncated, info = env.step(actions)      # (N,) ints
 
-Every flight of the package is flown here: training, evaluation, ``fly``, the classroom
-and, through ``minid3rqn.gym``, any Gymnasium library. One step:
+Every flight of the package is flown here (training, evaluation, ``fly``, the classroom,
+and any Gymnasium library through ``minid3rqn.gym``). One step:
 
     1. ``stepper.step_drones``: fly the chosen (speed, yaw rate) for 0.4 s along the
        exact arc; collision if the clearance drops below 0.5 m anywhere on it; the drone
-       ends at the arc's end and is paid reward_fn(d_nearest there, collided) (the
-       paper's Eq. 4 unless ``reward_fn`` is given);
-    2. observe the new view, chosen at construction (``observation``):
-           "depth"  GT depth in metres, (N, H, W) float32 (one ray cast per column);
-           "pred"   the DispNet's depth in metres from the RGB frame (``depth_model``:
-                    predict(rgb uint8 (m, H, W, 3)) -> depth (m, H, W));
-           "rgb"    the camera frame, (N, H, W, 3) uint8;
-           None     nothing (poses only, for privileged pilots);
-       ``depth_fn(depth, rng)``, if given, replaces every observed depth map (exercise 8);
-       the Q-nets read it encoded and stacked (``rl.observe``), a step of their own;
+       ends at the arc's end, paid reward_fn(d_nearest there, collided) (Eq. 4 default);
+    2. observe the new view, chosen at construction (``observation``): "depth" (GT depth
+       in metres, (N, H, W) float32), "pred" (the DispNet's depth in metres from the RGB
+       frame, ``depth_model``), "rgb" ((N, H, W, 3) uint8) or None (poses only);
+       ``depth_fn(depth, rng)`` replaces every depth map seen (exercise 8); the Q-nets
+       read it encoded and stacked (``rl.observe``), a step of their own;
     3. terminated = collided; truncated = ``max_steps`` actions flown without one (the
        paper's success, not a terminal state; ``info["is_success"]``).
 
-Worlds. ``worlds="train"`` draws the pool of ``n_worlds`` worlds from the training seeds
-[0, 1e6), ``"test"`` from the evaluation seeds [1e6, 2e6), so test flights are in
-worlds no training run has seen; a sequence of world seeds gives the pool itself. Each
-episode flies a world of the pool drawn at random, from a random free start pose;
-``reset(options=...)`` may pin them: {"scene_seed": k} (this scenario's world k) and
-{"pose": (x, y, yaw)}, each one value or one per flight. Everything random comes from
-``seed`` (None: fresh entropy); ``reset(seed=s)`` starts over as if constructed with s.
+Worlds: ``worlds="train"`` draws a pool of ``n_worlds`` worlds from the training seeds
+[0, 1e6), ``"test"`` from the evaluation seeds [1e6, 2e6); a sequence of world seeds is
+the pool. Each episode flies a world of the pool from a random free start;
+``reset(options=...)`` may pin them, {"scene_seed": k} and {"pose": (x, y, yaw)} (one
+value or one per flight). Everything random comes from ``seed`` (None: fresh entropy);
+``reset(seed=s)`` starts over as if constructed with s.
 
-A flight that has ended stays put until the next ``reset`` (``step`` skips it: reward 0,
-both flags False). With ``autoreset`` it restarts at once instead, and
-``info["final_obs"]`` holds every flight's observation before any restart (the replay
-needs a finished flight's last frame for its bootstrap).
-
-``info``: "d_nearest" (clearance at the new pose, m), "collided", "is_success", "step"
-(actions flown this episode) and "scene_seed" (each flight's world), one entry per
+A flight that has ended stays put until the next ``reset`` (not stepped: reward 0, both
+flags False); with ``autoreset`` it restarts at once, and ``info["final_obs"]`` holds
+every flight's observation before any restart. ``info`` also holds "d_nearest",
+"collided", "is_success", "step" and "scene_seed" (each flight's world), one entry per
 flight. ``render()`` (``render_mode="rgb_array"``): flight 0's top view and camera frame.
 """
 from __future__ import annotations
@@ -94,21 +86,22 @@ class DroneEnv:
         max_steps: actions before truncation (50, the paper's success).
         autoreset: restart finished flights inside ``step``.
         render_mode: None or "rgb_array".
-        safe_distance, dt: the collision threshold (0.5 m) and seconds per action (0.4).
     """
+
+    safe_distance, dt = SAFE_DISTANCE, ACTION_INTERVAL   # the collision threshold (paper)
 
     def __init__(self, scenario: str = "basic", n_envs: int = 1, *, seed=None, worlds="train",
                  n_worlds: int = 32, observation: str | None = "depth", depth_model=None,
                  depth_fn=None, camera: Camera | None = None, actions=None, reward_fn=None,
-                 max_steps: int = 50, autoreset: bool = False, render_mode: str | None = None,
-                 safe_distance: float = SAFE_DISTANCE, dt: float = ACTION_INTERVAL):
+                 max_steps: int = 50, autoreset: bool = False, render_mode: str | None = None):
         name = "DroneEnv"
         if scenario not in SCENARIOS:
             raise ValueError(f"{name}: scenario must be one of {SCENARIOS}; got {scenario!r}")
         self.n_envs = _positive_int(n_envs, f"{name}: n_envs")
         pool = None if isinstance(worlds, str) or worlds is None else np.asarray(worlds)
-        if worlds not in WORLD_SEEDS if pool is None else \
-                (pool.ndim != 1 or len(pool) < 1 or pool.dtype.kind not in "iu"):
+        if worlds not in WORLD_SEEDS if pool is None else (pool.ndim != 1 or len(pool) < 1
+                                                            or pool.dtype.kind not in "iu"
+                                                            or (pool < 0).any()):
             raise ValueError(f"{name}: worlds must be 'train', 'test' or a sequence of world "
                              f"seeds (ints >= 0); got {worlds!r}")
         self.n_worlds = _positive_int(n_worlds, f"{name}: n_worlds (the pool of worlds)") \
@@ -136,26 +129,15 @@ class DroneEnv:
         if render_mode not in RENDER_MODES:
             raise ValueError(f"{name}: render_mode must be one of {RENDER_MODES}; got "
                              f"{render_mode!r}")
-        if not safe_distance >= 0:
-            raise ValueError(f"{name}: safe_distance must be >= 0; got {safe_distance!r}")
-        if not dt > 0:
-            raise ValueError(f"{name}: dt must be > 0; got {dt!r}")
         self.scenario, self.worlds_kind = scenario, worlds
         self.observation, self.estimator, self.depth_fn = observation, depth_model, depth_fn
         self.autoreset, self.render_mode = bool(autoreset), render_mode
-        self.safe_distance, self.dt = float(safe_distance), float(dt)
-        self.n_actions = len(self.actions)
-        self.frame_shape = (self.camera.height, self.camera.width)
+        self.n_actions, self.frame_shape = len(self.actions), self.camera.shape
         n = self.n_envs
-        self.poses = np.zeros((n, 3))
-        self.steps = np.zeros(n, np.int64)
-        self.active = np.zeros(n, bool)
-        self.scene_seeds = np.zeros(n, np.int64)
-        self.d_nearest = np.zeros(n)
-        self.scenes = [None] * n
-        self.batch = None
-        self.obs = None
-        self.last_rgb = None
+        self.poses, self.d_nearest = np.zeros((n, 3)), np.zeros(n)
+        self.steps, self.scene_seeds = np.zeros(n, np.int64), np.zeros(n, np.int64)
+        self.active, self.scenes = np.zeros(n, bool), [None] * n
+        self.batch = self.obs = self.last_rgb = None
         self._path = []
         self._seed(seed)
 
