@@ -30,10 +30,13 @@ def abs(x) -> Tensor:
 def elu(x, alpha: float = 1.0) -> Tensor:
     """y = x if x > 0 else alpha (e^x - 1);  dy/dx = 1 if x > 0 else y + alpha."""
     x = as_tensor(x)
-    pos = x.data > 0
-    neg_part = alpha * np.expm1(np.minimum(x.data, 0))
-    y = np.where(pos, x.data, neg_part)
-    return Tensor.from_op(y, (x,), lambda g: (g * np.where(pos, 1, neg_part + alpha),), "elu")
+    neg = np.minimum(x.data, 0)
+    np.expm1(neg, out=neg)                          # alpha (e^x - 1) where x <= 0, else 0
+    if alpha != 1:
+        neg *= alpha
+    y = np.maximum(x.data, 0)                       # x where x > 0, else 0
+    y += neg                                        # each entry: itself plus an exact 0
+    return Tensor.from_op(y, (x,), lambda g: (g * np.where(y > 0, 1, y + alpha),), "elu")
 
 
 def sigmoid(x) -> Tensor:

@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from .elementwise import _stable_sigmoid
-from .engine import Tensor, check_same_dtype, float_tensor
+from .engine import Tensor, check_same_dtype, float_tensor, is_grad_enabled
 from .shape import crop
 
 
@@ -175,6 +175,8 @@ def lstm(x, h0, c0, weight_ih, weight_hh, bias=None) -> tuple[Tensor, tuple[Tens
         g, o = zt[:, 2 * hidden:3 * hidden], zt[:, 3 * hidden:]
         cs[t + 1] = f * cs[t] + i * g
         hs[t + 1] = o * np.tanh(cs[t + 1])
+    if not (is_grad_enabled() and any(p.requires_grad for p in parents)):
+        return Tensor(hs[1:]), (Tensor(hs[-1]), Tensor(cs[-1]))      # no graph to keep
     tcs = np.tanh(cs[1:])
     joined = np.concatenate([hs[1:], cs[1:]], axis=2)        # (T, B, 2H): [h_t, c_t]
 
