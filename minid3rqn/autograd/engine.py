@@ -472,7 +472,8 @@ def _pair_matmul(a, b) -> tuple[Tensor, Tensor]:
     else:
         b = as_tensor(b)
         a = as_tensor(a, like=b)
-    check_same_dtype((a, b), "matmul")
+    if a.dtype != b.dtype:
+        check_same_dtype((a, b), "matmul")
     if a.ndim == 0 or b.ndim == 0:
         raise ValueError(f"matmul: inputs must have at least 1 dimension; got shapes "
                          f"{a.shape} and {b.shape}")
@@ -522,7 +523,7 @@ def mean(x, axis=None, keepdims: bool = False) -> Tensor:
     x = as_tensor(x)
     axes = reduction_axes(axis, x.ndim, "mean")
     n = int(np.prod([x.shape[a] for a in axes])) if axes else 1
-    y = np.mean(x.data, axis=axes, keepdims=keepdims)
+    y = np.add.reduce(x.data, axis=axes, keepdims=keepdims) / n     # as np.mean sums
     return Tensor.from_op(np.asarray(y, dtype=x.dtype), (x,),
                           lambda g: (np.broadcast_to(_regrow(g, axes, keepdims) / n,
                                                      x.shape).astype(x.dtype),), "mean")
@@ -547,7 +548,8 @@ def transpose(x, axes=None) -> Tensor:
     x = as_tensor(x)
     if axes is None:
         axes = tuple(reversed(range(x.ndim)))
-    axes = tuple(int(a) for a in axes)
+    else:
+        axes = tuple(int(a) for a in axes)
     if sorted(a % max(x.ndim, 1) for a in axes) != list(range(x.ndim)):
         raise ValueError(f"transpose: axes {axes} are not a permutation of "
                          f"0..{x.ndim - 1} for shape {x.shape}")

@@ -75,6 +75,33 @@ def empty_like_layout(shape, like: np.ndarray, dtype=None) -> np.ndarray:
     return np.empty(shape, dtype)
 
 
+_ZEROS: dict = {}
+
+
+def zeros_like_layout(x: np.ndarray) -> np.ndarray | float:
+    """A read-only array of zeros with ``x``'s shape and memory layout (views of one
+    shared buffer), for ``np.maximum(x, zeros)``: NumPy's SIMD min/max loops run on two
+    arrays of one layout, not on an array and a scalar. ``0`` when ``x`` is neither
+    C-contiguous nor channels-last, or small (where the scalar costs less than this)."""
+    if x.size < 16384:
+        return 0
+    if x.flags.c_contiguous:
+        order = None
+    elif channels_last(x):
+        order = (0, 2, 3, 1)
+    else:
+        return 0
+    buf = _ZEROS.get(x.dtype)
+    if buf is None or buf.size < x.size:
+        buf = np.zeros(max(x.size, 1 << 16), x.dtype)
+        buf.flags.writeable = False
+        _ZEROS[x.dtype] = buf
+    if order is None:
+        return buf[:x.size].reshape(x.shape)
+    n, c, h, w = x.shape
+    return nchw_view(buf[:x.size].reshape(n, h, w, c))
+
+
 def pad_nhwc(x: np.ndarray, ph: int, pw: int, out: np.ndarray | None = None) -> np.ndarray:
     """NCHW ``x`` -> channels-last (N, H + 2 ph, W + 2 pw, C), zeros around. One copy,
     which also does the transposition (a plain copy if ``x`` is stored channels-last).
@@ -86,44 +113,98 @@ def pad_nhwc(x: np.ndarray, ph: int, pw: int, out: np.ndarray | None = None) -> 
     return out
 
 
-# -- the weight matrix, cached per weight version --------------------------------------------
-_WEIGHT_MATRICES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-_TAP_MATRICES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-_WEIGHT_LOCK = threading.Lock()
+# -- what a kernel derives from a weight, cached per weight version ------------------------
+_DERIVED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_DERIVED_LOCK = threading.Lock()
+
+
+def _derived(weight, name: str, make):
+    """``make(weight.data)``, computed once and reused while ``weight.version`` and its
+    array stay the same (one entry per ``name``)."""
+    data = weight.data
+    with _DERIVED_LOCK:
+        entries = _DERIVED.setdefault(weight, {})
+        entry = entries.get(name)
+    if entry is not None and entry[0] is data and entry[1] == weight.version:
+        return entry[2]
+    value = make(data)
+    with _DERIVED_LOCK:
+        entries[name] = (data, weight.version, value)
+    return value
+
+
+def _gemm_operand(w: np.ndarray) -> np.ndarray:
+    """(O, C, KH, KW) -> the (KH*KW*C, O) matrix, as the transposed view of a
+    C-contiguous (O, KH*KW*C) array (the operand every conv has always had: the same
+    BLAS kernel, the same sums)."""
+    O, C, KH, KW = w.shape
+    return np.ascontiguousarray(w.transpose(0, 2, 3, 1)).reshape(O, KH * KW * C).T
+
+
+def times_transposed(x: np.ndarray, weight) -> np.ndarray:
+    """``x @ weight.data.T`` for a 2-D ``x`` (rows, in) and weight (out, in), with
+    ``W^T`` laid out contiguously once per weight version. Below 3 rows OpenBLAS runs a
+    matrix-vector product, as fast on the transposed view and summed in another order
+    than on the copy: there the view is used, so a result never depends on the cache."""
+    if len(x) < 3:
+        return x @ weight.data.T
+    return x @ _derived(weight, "T", lambda w: np.ascontiguousarray(w.T))
 
 
 def weight_matrix(weight) -> np.ndarray:
     """A convolution weight Tensor (O, C, KH, KW) as the (KH*KW*C, O) operand of
-    ``cols @ W^T`` (rows ordered like a cols row: tap-major, channel fastest).
-
-    Computed once and reused while ``weight.version`` and its array stay the same."""
-    data = weight.data
-    with _WEIGHT_LOCK:
-        entry = _WEIGHT_MATRICES.get(weight)
-    if entry is not None and entry[0] is data and entry[1] == weight.version:
-        return entry[2]
-    O, C, KH, KW = data.shape
-    wmat_t = np.ascontiguousarray(data.transpose(0, 2, 3, 1)).reshape(O, KH * KW * C).T
-    with _WEIGHT_LOCK:
-        _WEIGHT_MATRICES[weight] = (data, weight.version, wmat_t)
-    return wmat_t
+    ``cols @ W^T`` (rows ordered like a cols row: tap-major, channel fastest), cached
+    per weight version."""
+    return _derived(weight, "gemm", _gemm_operand)
 
 
 def _tap_matrix(weight) -> np.ndarray:
     """The weight as (KH*KW*O, C): row (i*KW + j)*O + o holds w[o, :, i, j] (the
-    contract-first schedule's operand), cached like ``weight_matrix``."""
-    data = weight.data
-    key = ("taps", weight.version)
-    with _WEIGHT_LOCK:
-        entry = _TAP_MATRICES.get(weight)
-    if entry is not None and entry[0] is data and entry[1] == key:
-        return entry[2]
-    O, C, KH, KW = data.shape
-    taps = np.ascontiguousarray(data.transpose(2, 3, 0, 1).reshape(KH * KW * O, C))
-    with _WEIGHT_LOCK:
-        _TAP_MATRICES[weight] = (data, key, taps)
-    return taps
+    contract-first schedule's operand), cached per weight version."""
+    def make(w):
+        O, C, KH, KW = w.shape
+        return np.ascontiguousarray(w.transpose(2, 3, 0, 1).reshape(KH * KW * O, C))
+    return _derived(weight, "taps", make)
 
+
+def _phase_matrices(weight) -> dict:
+    """A 3x3 kernel read by a nearest-x2-upsampled image, as four 2x2 kernels of the
+    small image, one per output phase (p, q): {(p, q): (4C, O) GEMM operand}.
+
+    Output pixel (2a + p, 2b + q) of ``conv3x3(upsample2(x))`` (padding 1) reads
+    upsampled rows 2a + p - 1 .. 2a + p + 1, i.e. small rows (a - 1, a, a) for p = 0 and
+    (a, a, a + 1) for p = 1 (the zero padding agrees), so taps reading one small row
+    add up: rows (a - 1, a) with weights (w0, w1 + w2) for p = 0, rows (a, a + 1) with
+    (w0 + w1, w2) for p = 1; columns alike. 4 x 4 = 16 multiply-adds per small pixel
+    and channel pair instead of 4 x 9 = 36."""
+    def make(w):
+        rows = {0: lambda v: np.stack([v[:, :, 0], v[:, :, 1] + v[:, :, 2]], axis=2),
+                1: lambda v: np.stack([v[:, :, 0] + v[:, :, 1], v[:, :, 2]], axis=2)}
+        cols = {0: lambda v: np.stack([v[..., 0], v[..., 1] + v[..., 2]], axis=3),
+                1: lambda v: np.stack([v[..., 0] + v[..., 1], v[..., 2]], axis=3)}
+        return {(p, q): _gemm_operand(cols[q](rows[p](w))) for p in (0, 1) for q in (0, 1)}
+    return _derived(weight, "phases", make)
+
+
+# -- nearest-upsampled arrays, remembered under no_grad --------------------------------------
+_UPSAMPLED: dict = {}
+
+
+def remember_upsampled(y: np.ndarray, factor) -> None:
+    """Note that ``y`` is a nearest upsampling by ``factor`` (made read-only, so that it
+    stays one), so that a 3x3 convolution of it can run on the small image
+    (``_phase_matrices``). Forgotten when ``y`` is freed."""
+    y.flags.writeable = False
+    key = id(y)
+    _UPSAMPLED[key] = (weakref.ref(y, lambda _, k=key: _UPSAMPLED.pop(k, None)), factor)
+
+
+def _upsampled_by_two(x: np.ndarray):
+    """The small image whose nearest x2 upsampling ``x`` is (a strided view), or None."""
+    entry = _UPSAMPLED.get(id(x))
+    if entry is None or entry[0]() is not x or entry[1] != (2, 2):
+        return None
+    return x[:, :, ::2, ::2]
 
 
 # -- im2col, blocked --------------------------------------------------------------------------
@@ -211,55 +292,66 @@ def conv_weight_grad(xp: np.ndarray, kernel, stride, g: np.ndarray) -> np.ndarra
 
 
 # -- plans: a forward convolution's schedule, built once per input shape --------------------
+class _Blocks:
+    """The im2col schedule of one convolution over a fixed padded input buffer ``xp``:
+    ``steps`` lists, per block, ``(dst, src, cols, index)``: ``np.copyto(dst, src)``
+    writes its cols into the scratch ``work`` and ``cols @ W^T`` goes to output rows
+    ``index``."""
+
+    def __init__(self, xp: np.ndarray, kernel, stride, out_hw):
+        blocks = list(_blocks(_windows(xp, kernel, stride, out_hw)))
+        self.work = np.empty(blocks[0][0].size, xp.dtype)
+        self.steps = [_im2col_views(block, self.work) + (index,) for block, index in blocks]
+
+    def run(self, wmat_t: np.ndarray, y: np.ndarray) -> np.ndarray:
+        O = y.shape[3]
+        for dst, src, cols, index in self.steps:
+            np.copyto(dst, src)
+            np.matmul(cols, wmat_t, out=y[index].reshape(len(cols), O))
+        return y
+
+
 class _Plan:
-    """The schedule of one forward convolution for one input shape.
+    """How one forward convolution runs for one input shape, under ``no_grad``.
 
-    ``xp`` the padded channels-last input buffer (border zeros, never written), ``work``
-    the im2col scratch; ``steps`` a list of ``(dst, src, cols, index)``: for each block,
-    ``np.copyto(dst, src)`` writes its cols into ``work`` and ``cols @ W^T`` goes to the
-    output rows ``index``. ``contract``: the contract-first schedule instead (see the
-    module docstring), ``(x_t, P, shifted)``."""
+    ``xp``: the padded channels-last input buffer (its border zeros, never written).
+    ``kind``: "im2col" (``blocks``), "contract" (channels first: ``contract`` holds
+    the tap matrix product's views) or "phases" (a 3x3 conv of a nearest-x2-upsampled
+    image on the small image: ``phases`` maps (p, q) to the blocks of a 2x2 conv of
+    the window of ``xp`` at (p, q), written into ``part``)."""
 
-    def __init__(self, shape, dtype, kernel, stride, padding, out_hw, contract_first):
+    def __init__(self, shape, dtype, kernel, stride, padding, out_hw, out_channels, kind):
         N, C, H, W = shape
         (KH, KW), (ph, pw), (OH, OW) = kernel, padding, out_hw
-        self.padding, self.out_hw = padding, out_hw
+        self.kind = kind
         self.xp = np.zeros((N, H + 2 * ph, W + 2 * pw, C), dtype)
-        self.contract = None
-        self.steps = []
-        if contract_first:
-            return
-        blocks = list(_blocks(_windows(self.xp, kernel, stride, out_hw)))
-        self.work = np.empty(blocks[0][0].size, dtype)
-        for block, index in blocks:
-            dst, src, cols = _im2col_views(block, self.work)
-            self.steps.append((dst, src, cols, index))
-
-    def contract_views(self, O: int, kernel):
-        """``(x_t, P, shifted)`` for the contract-first schedule with O outputs."""
-        if self.contract is None or self.contract[0] != O:
-            N, Hp, Wp, C = self.xp.shape
-            (KH, KW), (OH, OW) = kernel, self.out_hw
-            P = np.empty((KH * KW * O, N * Hp * Wp), self.xp.dtype)
+        if kind == "im2col":
+            self.blocks = _Blocks(self.xp, kernel, stride, out_hw)
+        elif kind == "contract":
+            O, Hp, Wp = out_channels, H + 2 * ph, W + 2 * pw
+            P = np.empty((KH * KW * O, N * Hp * Wp), dtype)
             taps = P.reshape(KH, KW, O, N, Hp, Wp)
             shifted = [taps[i, j, :, :, i:i + OH, j:j + OW]
                        for i in range(KH) for j in range(KW)]
-            self.contract = (O, self.xp.reshape(N * Hp * Wp, C).T, P, shifted)
-        return self.contract[1:]
+            self.contract = (self.xp.reshape(N * Hp * Wp, C).T, P, shifted)
+        else:                                 # shape is the small image's; padding 1
+            self.phases = {(p, q): _Blocks(self.xp[:, p:p + H + 1, q:q + W + 1], (2, 2),
+                                           (1, 1), (H, W)) for p in (0, 1) for q in (0, 1)}
+            self.part = np.empty((N, H, W, out_channels), dtype)
 
 
 _LOCAL = threading.local()
 
 
-def _plan(shape, dtype, kernel, stride, padding, out_hw, contract_first) -> _Plan:
+def _plan(shape, dtype, kernel, stride, padding, out_hw, out_channels, kind) -> _Plan:
     plans = getattr(_LOCAL, "plans", None)
     if plans is None:
         plans = _LOCAL.plans = OrderedDict()
-    key = (shape, dtype, kernel, stride, padding, contract_first, _BLOCK_BYTES)
+    key = (shape, dtype, kernel, stride, padding, out_channels, kind, _BLOCK_BYTES)
     plan = plans.get(key)
     if plan is None:
         plan = plans[key] = _Plan(shape, dtype, kernel, stride, padding, out_hw,
-                                  contract_first)
+                                  out_channels, kind)
         if len(plans) > _MAX_PLANS:
             plans.popitem(last=False)
     else:
@@ -271,34 +363,39 @@ def conv2d_forward(x: np.ndarray, weight, kernel, stride, padding, out_hw,
                    keep_input: bool):
     """The forward convolution ``cols @ W^T`` of NCHW-shaped ``x`` (no bias).
 
-    Returns ``(y, xp)``: ``y`` a fresh channels-last (N, OH, OW, O) array and ``xp`` the
-    padded channels-last input the backward pass reads: a fresh array if
-    ``keep_input``, else the plan's buffer, overwritten by the next call (``xp`` is then
-    None)."""
+    Returns ``(y, xp)``: ``y`` a fresh channels-last (N, OH, OW, O) array; ``xp`` the
+    padded channels-last input, which the backward pass reads: a fresh array if
+    ``keep_input``, else None (the plan's buffer was used, and will be again)."""
     O = weight.shape[0]
     (KH, KW), (ph, pw) = kernel, padding
     if keep_input:                           # the backward pass keeps this one
         xp = pad_nhwc(x, ph, pw)
         return conv2d_nhwc(xp, kernel, stride, out_hw, weight_matrix(weight)), xp
-    contract_first = stride == (1, 1) and KH * KW * O <= x.shape[1]
-    plan = _plan(x.shape, x.dtype, kernel, stride, padding, out_hw, contract_first)
-    pad_nhwc(x, ph, pw, out=plan.xp)
     N, (OH, OW) = x.shape[0], out_hw
     y = np.empty((N, OH, OW, O), x.dtype)
-    if contract_first:
-        # P[(i, j, o), n, y, x] = sum_c w[o, c, i, j] xp[n, y, x, c], then
-        # y[n, u, v, o] = sum_{i, j} P[(i, j, o), n, u + i, v + j].
-        x_t, P, shifted = plan.contract_views(O, kernel)
-        np.matmul(_tap_matrix(weight), x_t, out=P)
-        acc = y.transpose(3, 0, 1, 2)                      # (O, N, OH, OW) view of y
-        np.copyto(acc, shifted[0])
-        for tap in shifted[1:]:
-            np.add(acc, tap, out=acc)
+    small = None
+    if kernel == (3, 3) and stride == (1, 1) and padding == (1, 1):
+        small = _upsampled_by_two(x)
+    if small is not None:
+        plan = _plan(small.shape, x.dtype, kernel, stride, padding, out_hw, O, "phases")
+        pad_nhwc(small, 1, 1, out=plan.xp)
+        weights = _phase_matrices(weight)
+        for (p, q), blocks in plan.phases.items():
+            y[:, p::2, q::2] = blocks.run(weights[p, q], plan.part)
         return y, None
-    wmat_t = weight_matrix(weight)
-    for dst, src, cols, index in plan.steps:
-        np.copyto(dst, src)
-        np.matmul(cols, wmat_t, out=y[index].reshape(len(cols), O))
+    kind = "contract" if stride == (1, 1) and KH * KW * O <= x.shape[1] else "im2col"
+    plan = _plan(x.shape, x.dtype, kernel, stride, padding, out_hw, O, kind)
+    pad_nhwc(x, ph, pw, out=plan.xp)
+    if kind == "im2col":
+        return plan.blocks.run(weight_matrix(weight), y), None
+    # P[(i, j, o), n, y, x] = sum_c w[o, c, i, j] xp[n, y, x, c], then
+    # y[n, u, v, o] = sum_{i, j} P[(i, j, o), n, u + i, v + j].
+    x_t, P, shifted = plan.contract
+    np.matmul(_tap_matrix(weight), x_t, out=P)
+    acc = y.transpose(3, 0, 1, 2)                          # (O, N, OH, OW) view of y
+    np.copyto(acc, shifted[0])
+    for tap in shifted[1:]:
+        np.add(acc, tap, out=acc)
     return y, None
 
 
@@ -353,14 +450,17 @@ def transposed_conv(g: np.ndarray, weight: np.ndarray, stride, origin, out_hw
 
 
 # -- nearest upsampling and concatenation, layout-preserving ---------------------------------
-def repeat_nearest(x: np.ndarray, sh: int, sw: int) -> np.ndarray:
+def repeat_nearest(x: np.ndarray, sh: int, sw: int, remember: bool = False) -> np.ndarray:
     """``np.repeat(np.repeat(x, sh, 2), sw, 3)`` for NCHW ``x``, in ``x``'s layout:
-    sh*sw strided copies, output pixel (sh i + a, sw j + b) = x[i, j]."""
+    sh*sw strided copies, output pixel (sh i + a, sw j + b) = x[i, j]. ``remember``:
+    ``remember_upsampled`` (the result is then read-only)."""
     N, C, H, W = x.shape
     y = empty_like_layout((N, C, sh * H, sw * W), x)
     for a in range(sh):
         for b in range(sw):
             y[:, :, a::sh, b::sw] = x
+    if remember:
+        remember_upsampled(y, (sh, sw))
     return y
 
 
