@@ -122,8 +122,8 @@ def conv2d(x, weight, bias=None, stride=1, padding=0) -> Tensor:
     OH, OW = _out_size(op, x.shape, (KH, KW), stride, padding)
     (ph, pw) = padding
 
-    graph = is_grad_enabled() and any(t is not None and t.requires_grad
-                                      for t in (x, weight, bias))
+    graph = is_grad_enabled() and (x.requires_grad or weight.requires_grad or
+                                   (bias is not None and bias.requires_grad))
     # y = cols @ W^T, channels-last (N, OH, OW, O); xp the zero-padded input
     y, xp = kernels.conv2d_forward(x.data, weight, (KH, KW), stride, padding, (OH, OW),
                                    keep_input=graph)

@@ -120,16 +120,17 @@ _DERIVED_LOCK = threading.Lock()
 
 def _derived(weight, name: str, make):
     """``make(weight.data)``, computed once and reused while ``weight.version`` and its
-    array stay the same (one entry per ``name``)."""
+    array stay the same (one entry per ``name``; forgotten with the weight)."""
     data = weight.data
-    with _DERIVED_LOCK:
-        entries = _DERIVED.setdefault(weight, {})
-        entry = entries.get(name)
+    entries = _DERIVED.get(weight)
+    if entries is None:
+        with _DERIVED_LOCK:
+            entries = _DERIVED.setdefault(weight, {})
+    entry = entries.get(name)
     if entry is not None and entry[0] is data and entry[1] == weight.version:
         return entry[2]
     value = make(data)
-    with _DERIVED_LOCK:
-        entries[name] = (data, weight.version, value)
+    entries[name] = (data, weight.version, value)         # one assignment: thread-safe
     return value
 
 
