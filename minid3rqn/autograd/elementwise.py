@@ -38,7 +38,12 @@ def elu(x, alpha: float = 1.0) -> Tensor:
         neg *= alpha
     y = np.maximum(x.data, zeros)                   # x where x > 0, else 0
     y += neg                                        # each entry: itself plus an exact 0
-    return Tensor.from_op(y, (x,), lambda g: (g * np.where(y > 0, 1, y + alpha),), "elu")
+
+    def vjp(g):
+        if alpha == 1:               # y + 1 is 1 or more exactly where y > 0: clip it there
+            return (g * np.minimum(y + 1, 1),)
+        return (g * np.where(y > 0, 1, y + alpha),)
+    return Tensor.from_op(y, (x,), vjp, "elu")
 
 
 def sigmoid(x) -> Tensor:
