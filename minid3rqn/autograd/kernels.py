@@ -1,8 +1,9 @@
-"""The convolution's kernels: memory layouts, cache blocking, plans and reused buffers.
+"""The kernels behind the ops: memory layouts, cache blocking, plans, reused buffers.
 
-``conv.py`` states the convolution and its gradient; this module makes them fast, as
-minitorch keeps ``fast_ops`` apart from its tensor math. Nothing here changes what is
-computed, only where it is stored and in what order the work is done.
+``conv.py`` states the convolution and its gradient, ``lstm.py`` the LSTM; this module
+makes them fast, as minitorch keeps ``fast_ops`` apart from its tensor math. What is
+computed stays the same; only where it is stored and in what order the work is done
+change (and, under ``no_grad``, the two schedules at the end).
 
 Layouts. Images are NCHW-*shaped* for the ops, but a convolution's output lives in
 channels-last (N, H, W, C) memory, which is what the next im2col reads and what a GEMM
@@ -14,23 +15,28 @@ Blocking. ``cols`` (the im2col matrix) is KH*KW times the image; it is built and
 consumed in blocks of about ``_BLOCK_BYTES``, so a block is still in the L2 cache when
 the GEMM reads it (``_blocks``), and rebuilt by the backward pass, never stored whole.
 
-Caches, valid until the weight changes:
+Caches, valid until the weight changes (``_derived``: keyed by the weight Tensor, its
+array and its ``version``, which the optimizer, ``load_state_dict`` and ``set_`` bump):
 
-- ``weight_matrix``: a weight (O, C, KH, KW) laid out as the (KH*KW*C, O) GEMM operand,
-  computed once per ``Tensor.version`` of the weight (the optimizer and
-  ``load_state_dict`` bump it).
-- ``plan``: for one input shape, the im2col schedule (strided views of a padded input
+- ``weight_matrix``: a conv weight (O, C, KH, KW) as the (KH*KW*C, O) GEMM operand;
+- ``times_transposed``: an LSTM weight's W^T laid out contiguously;
+- ``_Plan``: for one input shape, the im2col schedule (strided views of a padded input
   buffer and of a scratch buffer) built once and replayed. Under ``no_grad`` the
   padded input and the scratch are reused call after call (nothing keeps them: the
   backward pass is the only reader that would); with the graph on, the padded input is
-  fresh, because the backward pass reads it. Outputs are always fresh arrays.
-  One cache per thread.
+  fresh, because the backward pass reads it. Outputs are always fresh arrays. One
+  cache per thread, the least recently used plan dropped past ``_MAX_PLANS``.
 
-One schedule differs in its arithmetic, under ``no_grad`` only: a layer with very few
-output channels (KH*KW*C_out <= C_in, stride 1: a disparity head) contracts the channels
-first, ``P[t] = xp @ w[:, :, t]`` for each kernel tap t, and sums the KH*KW shifted tap
-images: the same products summed in another order (equal to float round-off, not to
-the bit), without the KH*KW-times-larger im2col copy.
+Two schedules differ in their arithmetic, under ``no_grad`` only (the same products
+summed in another order: equal to float round-off, not to the bit):
+
+- a layer with very few output channels (KH*KW*C_out <= C_in, stride 1: a disparity
+  head) contracts the channels first, ``P[t] = xp @ w[:, :, t]`` for each kernel tap
+  t, and sums the KH*KW shifted tap images, without the KH*KW-times-larger im2col;
+- a 3x3 convolution (stride 1, padding 1) of an array ``upsample`` made by nearest x2
+  upsampling (``remember_upsampled``; made read-only so that it stays one) runs as
+  four 2x2 convolutions of the small image, one per output phase
+  (``_phase_matrices``): 4/9 of the multiply-adds.
 """
 from __future__ import annotations
 
