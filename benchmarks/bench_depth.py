@@ -13,7 +13,7 @@ Measured (medians over ``--repeat`` runs after 3 warm-ups, float32, 32x104):
   align_corners=True is our sampler, ``avg_pool2d`` our area downsampling) and starts
   from OUR weights, so the two losses must agree: the script checks it before timing.
 - ``infer_fps``: DispNet (finest scale only) on batches of 64 uint8 frames, no graph,
-  through ``DepthEstimator.predict_disp`` (``DispNet.forward`` under ``no_grad``, 8
+  through ``DepthEstimator.predict_disp`` (``DispNet.forward`` under ``no_grad``, 32
   frames at a time). ``infer_ms_b1``: one frame (batch 1, the flight loop). The script
   checks that it agrees with the forward that records the graph (1e-4 relative).
 

@@ -56,7 +56,7 @@ class DepthEstimator:
     estimator: ``depth/flip.py: FlipAveraged``.
     """
 
-    CHUNK = 8                               # frames per forward in ``predict_disp``
+    CHUNK = 32                              # frames per forward in ``predict_disp``
 
     def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None):
         self.net, self.scale, self.meta = dispnet, float(scale), meta or {}
@@ -112,8 +112,8 @@ class DepthEstimator:
 
     def predict_disp(self, rgb) -> np.ndarray:
         """rgb uint8 (N, H, W, 3) or (H, W, 3) -> network disparity (N, H, W) float32:
-        ``net(rgb as (N, 3, H, W) float32 / 255, scales=1)[0]`` under ``no_grad``, 8
-        frames at a time (the working set of 8 frames stays in the CPU caches)."""
+        ``net(rgb as (N, 3, H, W) float32 / 255, scales=1)[0]`` under ``no_grad``, 32
+        frames at a time (a bounded working set, about 1 MB per frame)."""
         rgb, single = self._frames(rgb)
         dtype = self.net.heads[0].weight.dtype
         out = np.empty(rgb.shape[:3], dtype)
