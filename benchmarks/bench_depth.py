@@ -12,11 +12,10 @@ Measured (medians over ``--repeat`` runs after 3 warm-ups, float32, 32x104):
   Adam step. The torch side mirrors every step (``grid_sample`` with
   align_corners=True is our sampler, ``avg_pool2d`` our area downsampling) and starts
   from OUR weights, so the two losses must agree: the script checks it before timing.
-- ``infer_fps``: DispNet (finest scale only) on batches of 64 frames, no gradient,
-  through ``DispNetInference`` (the graph-free path ``DepthEstimator.predict`` runs);
-  ``infer_fps_ours_autograd``: the same through ``DispNet.forward`` under ``no_grad``
-  (what ``predict`` ran before). ``infer_ms_b1``: one frame (batch 1, the flight loop).
-  The script checks that the two paths agree (1e-4 relative) before timing.
+- ``infer_fps``: DispNet (finest scale only) on batches of 64 uint8 frames, no graph,
+  through ``DepthEstimator.predict_disp`` (``DispNet.forward`` under ``no_grad``, 32
+  frames at a time). ``infer_ms_b1``: one frame (batch 1, the flight loop). The script
+  checks that it agrees with the forward that records the graph (1e-4 relative).
 
 For each thread count the script re-runs itself in a child process with
 OMP_NUM_THREADS / OPENBLAS_NUM_THREADS / MKL_NUM_THREADS set before NumPy loads, and
@@ -41,7 +40,6 @@ def _child(threads: int, repeat: int) -> dict:
     from minid3rqn.autograd.optim import Adam
     from minid3rqn.depth.losses import view_synthesis_loss
     from minid3rqn.depth.train import TrainConfig, build_nets
-    from minid3rqn.nets.fast import DispNetInference
     from minid3rqn.world import Camera
 
     cfg = TrainConfig()
@@ -66,38 +64,28 @@ def _child(threads: int, repeat: int) -> dict:
         return float(loss.data)
 
     frames = rng.random((64, 3, h, w)).astype(np.float32)
-    frames_nhwc = np.ascontiguousarray(frames.transpose(0, 2, 3, 1))
-    fast = DispNetInference(disp)            # a snapshot: build it before training steps
+    frames_u8 = (frames.transpose(0, 2, 3, 1) * 255).astype(np.uint8)
+    frames_in = frames_u8.transpose(0, 3, 1, 2).astype(np.float32) * np.float32(1 / 255)
 
-    def ours_infer():
-        fast(frames_nhwc)
-
-    def ours_infer_autograd():
-        with ag.no_grad():
-            return disp(frames, scales=1)[0].data[:, 0]
-
-    def ours_infer_b1():
-        fast(frames_nhwc[:1])
-
-    # Test-time flip (FlipAveraged): the frame and its mirror, uint8 in.
     from minid3rqn.depth.evaluate import DepthEstimator
     from minid3rqn.depth.flip import FlipAveraged
+    est = DepthEstimator(disp, 1.0, {"height": h, "width": w})
     flip_est = FlipAveraged(DepthEstimator(disp, 1.0, {"height": h, "width": w}))
-    frames_u8 = (frames_nhwc * 255).astype(np.uint8)
-    flip_est.predict_disp(frames_u8)        # takes its snapshot now, like ``fast`` above
 
-    def ours_infer_flip():
+    def ours_infer():
+        est.predict_disp(frames_u8)
+
+    def ours_infer_b1():
+        est.predict_disp(frames_u8[:1])
+
+    def ours_infer_flip():                  # test-time flip: the frame and its mirror
         flip_est.predict_disp(frames_u8)
 
-    def ours_infer_b1_autograd():
-        with ag.no_grad():
-            disp(frames[:1], scales=1)
-
-    ref = ours_infer_autograd()
-    rel = float(np.max(np.abs(fast(frames_nhwc) - ref) / ref))
+    ref = disp(frames_in, scales=1)[0].data[:, 0]           # the graph on
+    rel = float(np.max(np.abs(est.predict_disp(frames_u8) - ref) / ref))
     if rel > 1e-4:
-        raise AssertionError(f"bench_depth: DispNetInference differs from the autograd "
-                             f"forward by {rel:.2g} (relative)")
+        raise AssertionError(f"bench_depth: predict_disp differs from the forward with "
+                             f"the graph by {rel:.2g} (relative)")
 
     result = {"threads": threads}
     torch_side = _torch_side(disp, pose, target, sources, K, cfg, frames, threads)
@@ -112,11 +100,8 @@ def _child(threads: int, repeat: int) -> dict:
                                  f"{result['loss_torch']}")
     result["infer_max_rel_diff"] = rel
     result["infer_fps_ours"] = 64 / (_median_ms(ours_infer, repeat) / 1000)
-    result["infer_fps_ours_autograd"] = 64 / (_median_ms(ours_infer_autograd, repeat)
-                                              / 1000)
     result["infer_fps_ours_flip"] = 64 / (_median_ms(ours_infer_flip, repeat) / 1000)
     result["infer_ms_b1_ours"] = _median_ms(ours_infer_b1, 20 * repeat)
-    result["infer_ms_b1_ours_autograd"] = _median_ms(ours_infer_b1_autograd, 20 * repeat)
     result["train_iter_ms_ours"] = _median_ms(ours_iter, repeat)
     if torch_side is not None:
         result["train_iter_ms_torch"] = _median_ms(torch_side["iter"], repeat)

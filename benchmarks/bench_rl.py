@@ -26,6 +26,8 @@ Measured (medians over ``--repeat`` runs after warm-ups, float32):
   (the result is then extrapolated linearly and marked so). ``--eval-workers 1,2``
   times it with the flights' chunks spread over that many processes, one per core
   (``evaluate --workers``; each process runs ``--threads`` BLAS threads).
+  ``cpu_seconds_per_2000``: the CPU time of all those processes (on a machine shared
+  with other work, the wall time of two workers on two free cores is about half of it).
 - The timed process keeps freed memory for reuse, as ``python -m minid3rqn`` does
   (minid3rqn/allocator.py); ``--default-malloc`` leaves glibc's allocator at its
   defaults (to measure what keeping freed memory is worth).
@@ -314,13 +316,21 @@ def bench_eval(flights: int, threads: int, workers: int = 1, ensemble: int = 1,
     modes = [("gt", None)]
     if shipped_depth_model("basic").exists():
         modes.append(("pred", load_depth_estimator(shipped_depth_model("basic"))))
+    import resource
+
+    def cpu_seconds():                 # this process and its reaped workers
+        return sum(resource.getrusage(who).ru_utime + resource.getrusage(who).ru_stime
+                   for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
     for depth, est in modes:
+        cpu = cpu_seconds()
         res = evaluate_policy(policy, "basic", n_flights=flights, depth=depth,
                               depth_estimator=est, progress=False, workers=workers)
+        cpu = cpu_seconds() - cpu
         outs.append({"part": "eval_2000", "threads": threads, "workers": workers,
                      "depth": depth,
                      "flights": flights, "seconds": res.seconds,
                      "seconds_per_2000": res.seconds * 2000 / flights,
+                     "cpu_seconds_per_2000": cpu * 2000 / flights,
                      "extrapolated": flights != 2000, "rate": res.rate, "model": model})
     return outs
 

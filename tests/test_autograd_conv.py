@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from minid3rqn.autograd import Tensor, gradcheck
-from minid3rqn.autograd import conv as conv_module
+from minid3rqn.autograd import kernels
 from minid3rqn.autograd.conv import conv2d, upsample
 from minid3rqn.autograd.engine import relu
 
@@ -123,7 +123,7 @@ def test_conv2d_blocks_give_the_same_result(monkeypatch, block_bytes, channels):
         return y.data, xt.grad, wt.grad, bt.grad
 
     reference = run()
-    monkeypatch.setattr(conv_module, "_BLOCK_BYTES", block_bytes)
+    monkeypatch.setattr(kernels, "_BLOCK_BYTES", block_bytes)
     for expected, got in zip(reference, run()):
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
     gradcheck(lambda x, w: conv2d(x, w, None, 1, 1), [rand(2, 2, 4, 5), rand(2, 2, 3, 2)])

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
 from .engine import Tensor, as_tensor, broadcast_pair, unbroadcast
 
 
@@ -30,10 +31,19 @@ def abs(x) -> Tensor:
 def elu(x, alpha: float = 1.0) -> Tensor:
     """y = x if x > 0 else alpha (e^x - 1);  dy/dx = 1 if x > 0 else y + alpha."""
     x = as_tensor(x)
-    pos = x.data > 0
-    neg_part = alpha * np.expm1(np.minimum(x.data, 0))
-    y = np.where(pos, x.data, neg_part)
-    return Tensor.from_op(y, (x,), lambda g: (g * np.where(pos, 1, neg_part + alpha),), "elu")
+    zeros = kernels.zeros_like_layout(x.data)       # (faster than the scalar 0)
+    neg = np.minimum(x.data, zeros)
+    np.expm1(neg, out=neg)                          # alpha (e^x - 1) where x <= 0, else 0
+    if alpha != 1:
+        neg *= alpha
+    y = np.maximum(x.data, zeros)                   # x where x > 0, else 0
+    y += neg                                        # each entry: itself plus an exact 0
+
+    def vjp(g):
+        if alpha == 1:               # y + 1 is 1 or more exactly where y > 0: clip it there
+            return (g * np.minimum(y + 1, 1),)
+        return (g * np.where(y > 0, 1, y + alpha),)
+    return Tensor.from_op(y, (x,), vjp, "elu")
 
 
 def sigmoid(x) -> Tensor:
@@ -44,8 +54,9 @@ def sigmoid(x) -> Tensor:
 
 
 def _stable_sigmoid(z: np.ndarray) -> np.ndarray:
+    """1 / (1 + e^-z) for z >= 0, e^z / (1 + e^z) otherwise: e = e^-|z| never overflows."""
     e = np.exp(-np.abs(z))
-    return np.where(z >= 0, 1 / (1 + e), e / (1 + e)).astype(z.dtype, copy=False)
+    return (np.where(z >= 0, 1, e) / (1 + e)).astype(z.dtype, copy=False)
 
 
 def tanh(x) -> Tensor:

@@ -64,9 +64,15 @@ class Tensor:
         grad: ``dL/data`` after ``backward()`` (leaves with ``requires_grad`` only),
             same shape and dtype as ``data``; gradients accumulate until ``zero_grad``.
         requires_grad: whether gradients flow to (and through) this tensor.
+        version: a counter bumped whenever ``data`` is assigned, which includes the
+            in-place forms ``t.data -= step`` (what the optimizer does) and
+            ``t.data[...] = value`` written as ``t.set_(value)``. Kernels that keep
+            something derived from a weight (a convolution's weight matrix) recompute
+            it when the version moves.
     """
 
-    __slots__ = ("data", "grad", "requires_grad", "_parents", "_vjp", "op")
+    __slots__ = ("_data", "grad", "requires_grad", "_parents", "_vjp", "op", "version",
+                 "__weakref__")
     __array_priority__ = 1000  # so that ndarray * Tensor calls Tensor.__rmul__
 
     def __init__(self, data, requires_grad: bool = False, dtype=None):
@@ -77,7 +83,8 @@ class Tensor:
         else:  # Python scalars and lists: float32 unless told otherwise
             array = np.asarray(data, dtype=np.float32 if dtype is None else dtype)
         _check_float(array, "Tensor data")
-        self.data: np.ndarray = array
+        self._data: np.ndarray = array
+        self.version = 0
         self.grad: np.ndarray | None = None
         self.requires_grad = bool(requires_grad)
         self._parents: tuple[Tensor, ...] = ()
@@ -97,7 +104,8 @@ class Tensor:
             op: a short name, shown in ``repr`` and in error messages.
         """
         out = Tensor.__new__(Tensor)
-        out.data = data
+        out._data = data
+        out.version = 0
         out.grad = None
         out.op = op
         out._parents = ()
@@ -109,22 +117,38 @@ class Tensor:
             out._vjp = vjp
         return out
 
+    # -- the value ----------------------------------------------------------------
+    @property
+    def data(self) -> np.ndarray:
+        return self._data
+
+    @data.setter
+    def data(self, array: np.ndarray) -> None:
+        self._data = array
+        self.version += 1
+
+    def set_(self, value) -> "Tensor":
+        """Overwrite the value in place (``data[...] = value``) and bump ``version``."""
+        self._data[...] = value
+        self.version += 1
+        return self
+
     # -- basic facts ---------------------------------------------------------------
     @property
     def shape(self) -> tuple[int, ...]:
-        return self.data.shape
+        return self._data.shape
 
     @property
     def ndim(self) -> int:
-        return self.data.ndim
+        return self._data.ndim
 
     @property
     def dtype(self):
-        return self.data.dtype
+        return self._data.dtype
 
     @property
     def size(self) -> int:
-        return self.data.size
+        return self._data.size
 
     @property
     def T(self) -> "Tensor":
@@ -331,7 +355,11 @@ def broadcast_pair(a, b, op: str) -> tuple[Tensor, Tensor]:
         a = as_tensor(a, like=b)
     else:
         a, b = as_tensor(a), as_tensor(b)
-    check_same_dtype((a, b), op)
+    if a.dtype != b.dtype:
+        check_same_dtype((a, b), op)
+    sa, sb = a._data.shape, b._data.shape
+    if sa == sb or (len(sb) <= len(sa) and sa[len(sa) - len(sb):] == sb):
+        return a, b                                    # b broadcasts along a's lead axes
     try:
         np.broadcast_shapes(a.shape, b.shape)
     except ValueError:
@@ -444,7 +472,8 @@ def _pair_matmul(a, b) -> tuple[Tensor, Tensor]:
     else:
         b = as_tensor(b)
         a = as_tensor(a, like=b)
-    check_same_dtype((a, b), "matmul")
+    if a.dtype != b.dtype:
+        check_same_dtype((a, b), "matmul")
     if a.ndim == 0 or b.ndim == 0:
         raise ValueError(f"matmul: inputs must have at least 1 dimension; got shapes "
                          f"{a.shape} and {b.shape}")
@@ -494,7 +523,7 @@ def mean(x, axis=None, keepdims: bool = False) -> Tensor:
     x = as_tensor(x)
     axes = reduction_axes(axis, x.ndim, "mean")
     n = int(np.prod([x.shape[a] for a in axes])) if axes else 1
-    y = np.mean(x.data, axis=axes, keepdims=keepdims)
+    y = np.add.reduce(x.data, axis=axes, keepdims=keepdims) / n     # as np.mean sums
     return Tensor.from_op(np.asarray(y, dtype=x.dtype), (x,),
                           lambda g: (np.broadcast_to(_regrow(g, axes, keepdims) / n,
                                                      x.shape).astype(x.dtype),), "mean")
@@ -519,13 +548,13 @@ def transpose(x, axes=None) -> Tensor:
     x = as_tensor(x)
     if axes is None:
         axes = tuple(reversed(range(x.ndim)))
-    axes = tuple(int(a) for a in axes)
+    else:
+        axes = tuple(int(a) for a in axes)
     if sorted(a % max(x.ndim, 1) for a in axes) != list(range(x.ndim)):
         raise ValueError(f"transpose: axes {axes} are not a permutation of "
                          f"0..{x.ndim - 1} for shape {x.shape}")
-    inverse = tuple(np.argsort(axes))
     return Tensor.from_op(np.transpose(x.data, axes), (x,),
-                          lambda g: (np.transpose(g, inverse),), "transpose")
+                          lambda g: (np.transpose(g, np.argsort(axes)),), "transpose")
 
 
 def getitem(x, index) -> Tensor:

@@ -35,8 +35,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
 from .elementwise import _stable_sigmoid
-from .engine import Tensor, check_same_dtype, float_tensor
+from .engine import Tensor, check_same_dtype, float_tensor, is_grad_enabled
 from .shape import crop
 
 
@@ -161,7 +162,8 @@ def lstm(x, h0, c0, weight_ih, weight_hh, bias=None) -> tuple[Tensor, tuple[Tens
 
     # forward: gates (T, B, 4H); hs[t] = h_t and cs[t] = c_t for t = 0..T
     w_ih, w_hh = weight_ih.data, weight_hh.data
-    gates = (x.data.reshape(steps * batch, in_size) @ w_ih.T).reshape(steps, batch, 4 * hidden)
+    gates = kernels.times_transposed(x.data.reshape(steps * batch, in_size), weight_ih)
+    gates = gates.reshape(steps, batch, 4 * hidden)
     if b:
         gates += b[0].data
     hs = np.empty((steps + 1, batch, hidden), dtype)
@@ -169,12 +171,14 @@ def lstm(x, h0, c0, weight_ih, weight_hh, bias=None) -> tuple[Tensor, tuple[Tens
     hs[0], cs[0] = h0.data, c0.data
     for t in range(steps):
         zt = gates[t]
-        zt += hs[t] @ w_hh.T
+        zt += kernels.times_transposed(hs[t], weight_hh)
         _gates(zt, hidden)
         i, f = zt[:, :hidden], zt[:, hidden:2 * hidden]
         g, o = zt[:, 2 * hidden:3 * hidden], zt[:, 3 * hidden:]
         cs[t + 1] = f * cs[t] + i * g
         hs[t + 1] = o * np.tanh(cs[t + 1])
+    if not (is_grad_enabled() and any(p.requires_grad for p in parents)):
+        return Tensor(hs[1:]), (Tensor(hs[-1]), Tensor(cs[-1]))      # no graph to keep
     tcs = np.tanh(cs[1:])
     joined = np.concatenate([hs[1:], cs[1:]], axis=2)        # (T, B, 2H): [h_t, c_t]
 

@@ -28,7 +28,6 @@ from ..io import load_npz, save_npz
 from ..nets.dispnet import DispNet
 from ..io import reason
 from ..nets.module import check_finite
-from ..nets.fast import DispNetInference
 from ..world.geometry import relative_transform
 from .data import Sequence
 from .geometry import pose_vec_to_mat
@@ -45,8 +44,8 @@ class DepthEstimator:
     the same scale for every frame (not normalised per frame, which would throw away
     the absolute nearness that obstacle avoidance needs).
 
-    Inference runs on a snapshot of the network's weights, taken at the first
-    ``predict`` (``DispNetInference``): build a new estimator after training further.
+    Inference is ``DispNet.forward`` (finest scale) without a graph, on the network's
+    current weights: training it further changes what ``predict`` returns.
 
     Args:
         dispnet: a trained DispNet.
@@ -57,9 +56,10 @@ class DepthEstimator:
     estimator: ``depth/flip.py: FlipAveraged``.
     """
 
+    CHUNK = 32                              # frames per forward in ``predict_disp``
+
     def __init__(self, dispnet: DispNet, scale: float = 1.0, meta: dict | None = None):
         self.net, self.scale, self.meta = dispnet, float(scale), meta or {}
-        self._fast = None                   # DispNetInference, built at the first predict
         self.height = self.meta.get("height", 32)
         self.width = self.meta.get("width", 104)
 
@@ -111,15 +111,17 @@ class DepthEstimator:
         return rgb, single
 
     def predict_disp(self, rgb) -> np.ndarray:
-        """rgb uint8 (N, H, W, 3) or (H, W, 3) -> network disparity (N, H, W) float32.
-
-        Equal (to float32 round-off) to the autograd forward ``net(rgb as (N, 3, H, W)
-        float32 / 255, scales=1)[0]``; computed by the graph-free ``DispNetInference``.
-        """
+        """rgb uint8 (N, H, W, 3) or (H, W, 3) -> network disparity (N, H, W) float32:
+        ``net(rgb as (N, 3, H, W) float32 / 255, scales=1)[0]`` under ``no_grad``, 32
+        frames at a time (a bounded working set, about 1 MB per frame)."""
         rgb, single = self._frames(rgb)
-        if self._fast is None:
-            self._fast = DispNetInference(self.net)
-        out = self._fast(rgb).astype(np.float32, copy=False)
+        dtype = self.net.heads[0].weight.dtype
+        out = np.empty(rgb.shape[:3], dtype)
+        with ag.no_grad():
+            for k in range(0, len(rgb), self.CHUNK):
+                x = np.multiply(rgb[k:k + self.CHUNK], dtype.type(1 / 255.0))  # channels-last
+                out[k:k + self.CHUNK] = self.net(x.transpose(0, 3, 1, 2), scales=1)[0].data[:, 0]
+        out = out.astype(np.float32, copy=False)
         return out[0] if single else out
 
     def predict(self, rgb) -> np.ndarray:

@@ -81,7 +81,7 @@ class DispNet(Module):
             # settles (docs/depth.md, "choices").
             q = (init_disp - min_disp) / disp_scale
             for head in self.heads:
-                head.bias.data[...] = np.log(q / (1 - q))
+                head.bias.set_(np.log(q / (1 - q)))
 
     def config(self) -> dict:
         return {"encoder": list(self.encoder_channels), "decoder": list(self.decoder_channels),

@@ -9,6 +9,7 @@ import numpy as np
 
 from .. import autograd as ag
 from ..autograd import Tensor
+from ..autograd.conv import _int_pair
 from .init import as_rng, kaiming_uniform, uniform_fan_in
 from .module import Module
 
@@ -49,7 +50,9 @@ class Conv2d(Module):
         kh, kw = (kernel_size, kernel_size) if np.isscalar(kernel_size) else kernel_size
         self.in_channels = _positive("Conv2d in_channels", in_channels)
         self.out_channels = _positive("Conv2d out_channels", out_channels)
-        self.stride, self.padding = stride, padding
+        # validated once, here: (h, w) pairs of ints
+        self.stride = _int_pair(stride, "stride", "Conv2d", 1)
+        self.padding = _int_pair(padding, "padding", "Conv2d", 0)
         fan_in = in_channels * kh * kw
         self.weight = Tensor(kaiming_uniform((out_channels, in_channels, kh, kw), fan_in,
                                              rng, dtype), requires_grad=True)

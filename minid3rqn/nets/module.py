@@ -68,7 +68,7 @@ class Module:
             if value.shape != p.shape:
                 raise ValueError(f"load_state_dict: {name} expects shape {p.shape}; "
                                  f"the state has {value.shape}")
-            p.data[...] = value.astype(p.dtype, copy=False)
+            p.set_(value.astype(p.dtype, copy=False))
 
     def save(self, path, metadata: dict | None = None) -> Path:
         """Write the parameters to an ``.npz`` (atomically), with optional metadata."""

@@ -25,7 +25,6 @@ from ..config import at_least, between, positive, setting, validate
 from ..autograd import Tensor, no_grad
 from ..autograd.losses import huber_loss
 from ..autograd.optim import Adam, clip_grad_norm
-from ..nets.fast import qnet_step
 from ..nets.qnet import QNet, QNetConfig
 from .replay import SequenceBatch
 
@@ -102,7 +101,7 @@ class Agent:
     def q_values(self, obs: np.ndarray, state=None):
         """Greedy forward for a batch of flights: obs (B, C, H, W) -> (Q (B, A) array, state)."""
         with no_grad():
-            q, state = qnet_step(self.online, np.asarray(obs, dtype=np.float32), state)
+            q, state = self.online.step(np.asarray(obs, dtype=np.float32), state)
         return q.data, state
 
     def act(self, obs: np.ndarray, state, epsilon: float, rng: np.random.Generator):

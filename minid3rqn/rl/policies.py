@@ -16,7 +16,6 @@ import math
 
 import numpy as np
 
-from ..nets.fast import qnet_step
 from ..nets.qnet import QNet, QNetConfig
 from ..world.distance import clearance_field, sample_fields
 from ..world.kinematics import fly_plans, loiter_actions, loiter_circles, plan_paths
@@ -386,7 +385,7 @@ class QNetPolicy(Policy):
             self.stacker.push(frames[live], live)
         self.fresh[:] = False
         with no_grad():
-            q, self.state = qnet_step(self.qnet, self.stacker.obs, self.state)
+            q, self.state = self.qnet.step(self.stacker.obs, self.state)
         self.last_q = q.data
         return np.argmax(self.last_q, axis=1).astype(np.int64)
 
