@@ -5,7 +5,8 @@ importing a command's module when that command runs (so ``--help`` is instant).
 
 A bad input is one line on stderr naming the option or the file (exit status 2), never a
 traceback; Ctrl-C in a training loop saves the run's checkpoint and prints the command
-that continues it (exit status 130).
+that continues it (exit status 130), also in every worker of a command that trains
+several runs at once. SIGTERM (``kill``, ``timeout``, a scheduler) is Ctrl-C.
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import sys
 
 from .allocator import keep_freed_memory
 from .config import UsageError, shell_command
+from .executor import WorkerLost, sigterm_as_ctrl_c
 from .io import DamagedCheckpoint, RunStopped
 
 # command name -> (module, one-line help). Each module defines add_arguments(parser)
@@ -95,6 +97,7 @@ def main(argv=None) -> int:
         sub.error(f"unrecognized arguments: {' '.join(rest)}")
     keep_freed_memory()    # speed only: NumPy's temporaries reuse memory (allocator.py)
     name = f"{parser.prog} {args.command}"
+    sigterm_as_ctrl_c()
     try:
         return int(_hook(args._module, args._name, "run")(args) or 0)
     except (UsageError, DamagedCheckpoint) as e:   # a bad input: one line, no traceback
@@ -107,6 +110,9 @@ def main(argv=None) -> int:
         print(f"{name}: interrupted (Ctrl-C); files already written are whole",
               file=sys.stderr)
         return 130
+    except WorkerLost as e:    # a task whose worker kept dying (e.g. out of memory)
+        print(f"{name}: {e}", file=sys.stderr)
+        return 1
     except FloatingPointError as e:   # a training diverged (e.g. a learning rate too large)
         print(f"{name}: the training diverged ({e}); nothing more was saved", file=sys.stderr)
         return 1

@@ -299,13 +299,14 @@ def run_reproduce(args) -> int:
                          "neither --recipe distil nor --skip-depth")
     out = check_output(args.out, "--out", folder=True)
     try:            # the runs it finds in --out are continued (made with these settings)
+        how = {"workers": cfg.workers, "executor": cfg.executor}
         if cfg.quick:
-            reproduce_quick(out, seed=cfg.seed, workers=cfg.workers)
+            reproduce_quick(out, seed=cfg.seed, **how)
         elif cfg.recipe == "paper":
-            reproduce(out, seed=cfg.seed, skip_depth=cfg.skip_depth, workers=cfg.workers)
+            reproduce(out, seed=cfg.seed, skip_depth=cfg.skip_depth, **how)
         else:
-            reproduce_distilled(out, seed=cfg.seed, skip_depth=cfg.skip_depth, workers=cfg.workers,
-                                students=cfg.students)
+            reproduce_distilled(out, seed=cfg.seed, skip_depth=cfg.skip_depth,
+                                students=cfg.students, **how)
     except ValueError as e:
         raise UsageError(f"--out: {e}") from None
     return 0

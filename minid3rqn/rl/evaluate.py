@@ -33,16 +33,14 @@ is Wilson's over the C worlds.
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
 import sys
 import time
-import warnings
-from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from ..config import ConfigError, at_least, setting, shell_command, validate
+from ..executor import EXECUTORS, get_executor
 from ..world import DroneEnv
 from .policies import Policy
 
@@ -228,20 +226,18 @@ def _fly_chunk(policy: Policy, scenario: str, n: int, child: int, worlds, n_worl
     return steps, env.scene_seeds.copy()
 
 
-_FORKED = None       # what the chunks are flown with (set for the length of one evaluation,
-                     # so forked worker processes inherit it instead of unpickling it)
-
-
-def _fly_chunk_forked(task):
+def _fly_task(shared, task):
+    """``_fly_chunk`` of one task (n, child), the rest of its arguments ``shared``."""
     n, child = task
-    return _fly_chunk(*_FORKED[:2], n, child, *_FORKED[2:])
+    return _fly_chunk(*shared[:2], n, child, *shared[2:])
 
 
 def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 2000,
                     seed: int = 12345, max_steps: int = 50, chunk: int = 500,
                     depth: str = "gt", depth_estimator=None, n_worlds: int = 32,
                     progress: bool = True, workers: int = 1, env_factory=None,
-                    actions=None, camera=None, worlds="test") -> EvalResult:
+                    actions=None, camera=None, worlds="test",
+                    executor=None) -> EvalResult:
     """Success rate of ``policy`` over ``n_flights`` fresh flights (greedy, batched).
 
     The flights are flown ``chunk`` at a time, each chunk from its own seed
@@ -251,7 +247,9 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     paper's protocol: a model's own training worlds, ``training_worlds``). ``depth``:
     "gt" or "pred" (the DispNet ``depth_estimator``). ``workers`` > 1 flies the chunks
     in that many processes (one per core; forked, so the policy and the depth network
-    are shared, not pickled): the result is the same as with one. ``env_factory``
+    are shared, not pickled); ``executor`` (``executor.get_executor``; default the local
+    pool of ``workers``) flies them elsewhere, e.g. on Ray: the result is the same as
+    with one process. ``env_factory``
     (default ``DroneEnv``) makes each chunk's env from ``DroneEnv``'s arguments: a
     subclass that changes what the policy sees
     (``examples/07_which_depth_errors_matter.py``) is flown the same way. ``actions``,
@@ -270,36 +268,24 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     n_worlds = min(n_worlds, chunk, n_flights)
     observation = {"gt": "depth", "pred": "pred"}[depth]
     tasks = _chunk_seeds(seed, n_flights, chunk)
-    workers = min(workers, len(tasks))
-    if workers > 1 and "fork" not in mp.get_all_start_methods():
-        warnings.warn("evaluate_policy: this platform cannot fork; flying the chunks in "
-                      "one process", RuntimeWarning, stacklevel=2)
-        workers = 1
+    if executor is None:
+        executor = get_executor("local", workers)
     t0 = time.time()
     bar = None
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=n_flights, unit="flight", desc=f"eval {policy.name} {scenario}",
                    dynamic_ncols=True, leave=False)
-    global _FORKED
-    _FORKED = (policy, scenario, worlds, n_worlds, observation, depth_estimator, max_steps,
-               env_factory or DroneEnv, actions, camera)
-    survived, world = [], []
+    shared = (policy, scenario, worlds, n_worlds, observation, depth_estimator, max_steps,
+              env_factory or DroneEnv, actions, camera)
     try:
-        with (mp.get_context("fork").Pool(workers) if workers > 1 else nullcontext()) as pool:
-            # imap keeps the chunks' order, so the result is the one-process one
-            runs = map(_fly_chunk_forked, tasks) if pool is None else \
-                pool.imap(_fly_chunk_forked, tasks)
-            for (n, _), (steps, world_seed) in zip(tasks, runs):
-                survived.append(steps)
-                world.append(world_seed)
-                if bar is not None:
-                    bar.update(n)
+        runs = executor.run(_fly_task, tasks, shared, on_result=None if bar is None else
+                            lambda i, _: bar.update(tasks[i][0]))
     finally:
-        _FORKED = None
-    if bar is not None:
-        bar.close()
-    survived = np.concatenate(survived)
+        if bar is not None:
+            bar.close()
+    survived = np.concatenate([steps for steps, _ in runs])
+    world = [world_seed for _, world_seed in runs]
     success = survived >= max_steps
     k = int(success.sum())
     lo, hi = wilson_interval(k, n_flights)
@@ -334,6 +320,10 @@ class EvalConfig:
     workers: int = setting(1, "processes flying the chunks, one per core (the same "
                               "result; run with OMP_NUM_THREADS=1)", source="run",
                            check=at_least(1))
+    executor: str = setting("local", "where the chunks fly: processes of this machine "
+                                     "(--workers), or Ray tasks on the cluster ray.init() "
+                                     "finds (RAY_ADDRESS; the same result)", source="run",
+                            choices=EXECUTORS)
     mirror: bool = setting(False, "each Q-net also flies the mirrored view; greedy on the "
                                   "mean Q-values (docs/d3rqn.md section 10)", cli="main")
     flip_tta: bool = setting(False, "the DispNet's disparity averaged with its disparity on "
@@ -385,7 +375,7 @@ def evaluate_spec(spec: str, cfg: EvalConfig, depth_estimator=None,
         print(warning, file=sys.stderr, flush=True)
     res = evaluate_policy(pol, cfg.scenario, cfg.flights, cfg.seed, cfg.steps, cfg.chunk,
                           cfg.depth, depth_estimator, progress=progress, workers=cfg.workers,
-                          worlds=worlds)
+                          worlds=worlds, executor=get_executor(cfg.executor, cfg.workers))
     flip = depth_estimator is not None and cfg.flip_tta
     how = [f"{cfg.depth} depth"] + (["flip"] if flip else []) + \
         (["its training worlds"] if cfg.worlds == "train" else [])

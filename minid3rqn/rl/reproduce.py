@@ -31,12 +31,12 @@ from __future__ import annotations
 
 import json
 import math
-import multiprocessing as mp
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..config import at_least, setting, validate
+from ..executor import EXECUTORS, get_executor
 from .distill import DistilConfig, distil, student
 from .evaluate import EvalConfig, evaluate_spec
 from .evaluate import TEST_WORLDS
@@ -70,9 +70,14 @@ class ReproduceConfig:
                                  "test flights per cell", source="run")
     skip_depth: bool = setting(False, "reuse the shipped depth models instead of training "
                                       "them", source="run")
-    workers: int = setting(1, "processes for the evaluations; --quick and --recipe distil "
-                              "also train that many nets at a time (run with "
-                              "OMP_NUM_THREADS=1)", source="run", check=at_least(1))
+    workers: int = setting(1, "processes training the Q-nets and flying the evaluations, "
+                              "that many at a time (run with OMP_NUM_THREADS=1)",
+                           source="run", check=at_least(1))
+    executor: str = setting("local", "where the trainings and evaluations run: processes "
+                                     "of this machine (--workers), or Ray tasks on the "
+                                     "cluster ray.init() finds (RAY_ADDRESS; the run "
+                                     "folders on storage shared by every node)",
+                            source="run", choices=EXECUTORS)
     students: int = setting(1, "--recipe distil: students of stage 2 (seeds 0, 1, ...)",
                             source="run", check=at_least(1))
     seed: int = setting(0, "seeds every training (nets, worlds, exploration); the test "
@@ -155,21 +160,28 @@ def _train_qnet(cfg, run_dir: Path, depth_model=None, progress: bool = True) -> 
     return save_trained(run, command, depth_model, time.time() - t0)
 
 
-def _train_task(task) -> Path:
-    return _train_qnet(*task, progress=False)
+def _train_task(progress: bool, task) -> Path:
+    return _train_qnet(*task, progress=progress)
 
 
-def _train_all(tasks: list, workers: int) -> list:
-    """Train independent runs ((config, run_dir, depth_model) each), ``workers`` at a
-    time in forked processes (one per core, no progress bars; the same runs as one after
-    the other: each is fixed by its own seed)."""
-    if workers <= 1 or len(tasks) <= 1 or "fork" not in mp.get_all_start_methods():
-        return [_train_qnet(*t) for t in tasks]
-    print(f"\n== {len(tasks)} runs, {min(workers, len(tasks))} at a time (no progress bars: "
-          f"each prints a line per checkpoint): {', '.join(Path(t[1]).name for t in tasks)}",
-          flush=True)
-    with mp.get_context("fork").Pool(min(workers, len(tasks))) as pool:
-        return pool.map(_train_task, tasks, chunksize=1)
+def _train_all(tasks: list, executor) -> list:
+    """Train independent runs ((config, run_dir, depth_model) each) with ``executor``
+    (``executor.get_executor``): one after the other with progress bars, or that many at a
+    time (no progress bars: each prints a line per checkpoint; the same runs, each fixed
+    by its own seed). Ctrl-C stops every run with its checkpoint (``io.RunStopped``)."""
+    serial = executor.name == "local" and min(executor.workers, len(tasks)) <= 1
+    if serial:
+        return executor.run(_train_task, tasks, True)
+    print(f"\n== {len(tasks)} runs on {executor.name} (no progress bars: each prints a line "
+          f"per checkpoint): {', '.join(Path(t[1]).name for t in tasks)}", flush=True)
+    names = [Path(t[1]).name for t in tasks]
+    finished = []
+
+    def report(i, model):
+        finished.append(names[i])
+        print(f"== {len(finished)} of {len(tasks)} runs finished: {names[i]}", flush=True)
+    return executor.run(_train_task, tasks, False, report,
+                        check_folders={Path(t[1]).parent for t in tasks})
 
 
 def _family_member(spec: str, seed: int, budget: dict, init_model: Path | None = None):
@@ -190,10 +202,11 @@ def _family_member(spec: str, seed: int, budget: dict, init_model: Path | None =
 
 
 def _evaluate(spec, scenario: str, budget: dict, seed: int, depth: str, depth_model,
-              workers: int, mirror: bool = False) -> dict:
+              executor, mirror: bool = False) -> dict:
     """``evaluate SPEC`` on ``budget["flights"]`` test flights; returns its record."""
     cfg = EvalConfig(scenario=scenario, flights=budget["flights"], seed=12345 + seed,
-                     depth=depth, workers=workers, mirror=mirror,
+                     depth=depth, workers=executor.workers or 1, executor=executor.name,
+                     mirror=mirror,
                      depth_model=str(depth_model) if depth == "pred" else "")
     est = load_depth_estimator(depth_model) if depth == "pred" else None
     return evaluate_spec(str(spec), cfg, est)[1]
@@ -221,27 +234,34 @@ def _depth_models(out: Path, seed: int, budget: dict, scenarios, skip_depth: boo
 
 
 def reproduce(out: Path, seed: int = 0, skip_depth: bool = False, workers: int = 1,
-              budget: dict | None = None) -> dict:
+              budget: dict | None = None, executor: str = "local") -> dict:
     """Run the pipeline of the module docstring (Tables 5 and 6); ``budget`` (tests)
-    overrides FULL's entries."""
+    overrides FULL's entries. The family's trainings, then their fine-tunes, and the
+    evaluations' chunks run ``workers`` at a time with ``executor``
+    (``executor.get_executor``)."""
     budget = {**FULL, **(budget or {})}
+    ex = get_executor(executor, workers)
     out.mkdir(parents=True, exist_ok=True)
     results = {"budget": budget, "seed": seed, "depth": "pred", "table5": [], "table6": [],
                "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     depth_models = _depth_models(out, seed, budget, ["basic", *TRANSFER], skip_depth)
-    models = {}
+    names = {}
     for spec in FAMILY:
-        cfg = _family_member(spec, seed, budget)
-        name = f"{cfg.variant}{f'_stack{cfg.stack}' if cfg.stack > 1 else ''}_basic"
-        models[spec] = _train_qnet(cfg, out / "agent" / f"{name}_gt_s{seed}")
-        if budget["finetune_steps"] > 0:
-            models[spec] = _train_qnet(_family_member(spec, seed, budget, models[spec]),
-                                       out / "agent" / f"{name}_pred_s{seed}_finetuned",
-                                       depth_models["basic"])
+        variant, _, stack = spec.partition(":")
+        names[spec] = f"{variant}{f'_stack{stack}' if int(stack or 1) > 1 else ''}_basic"
+    trained = _train_all([(_family_member(spec, seed, budget),
+                           out / "agent" / f"{names[spec]}_gt_s{seed}", None)
+                          for spec in FAMILY], ex)
+    if budget["finetune_steps"] > 0:
+        trained = _train_all([(_family_member(spec, seed, budget, gt),
+                               out / "agent" / f"{names[spec]}_pred_s{seed}_finetuned",
+                               depth_models["basic"]) for spec, gt in zip(FAMILY, trained)],
+                             ex)
+    models = dict(zip(FAMILY, trained))
 
     def run_eval(policies, scenario):
         return [_evaluate(spec, scenario, budget, seed, "pred", depth_models[scenario],
-                          workers) for spec in policies]
+                          ex) for spec in policies]
 
     baselines = ["straight", "random", "reactive", "oracle"]
     results["table5"] = run_eval(baselines + [models[s] for s in FAMILY], "basic")
@@ -310,16 +330,18 @@ def _stage(teacher: str, init_model, seed: int, steps: int, budget: dict, depth:
 
 def reproduce_distilled(out: Path, seed: int = 0, students: int = 1,
                         skip_depth: bool = False, tables: str = "both", workers: int = 1,
-                        budget: dict | None = None) -> dict:
+                        budget: dict | None = None, executor: str = "local") -> dict:
     """The distilled D3RQN end to end: the basic DispNet (and, for Table 6, the transfer
     ones) as in ``reproduce``; the four GT parents; stage 1 from the wide seed-``seed``
     parent; ``students`` students of stage 2 (seeds ``seed``, ``seed`` + 1, ...), each
     flown on predicted depth in ``basic`` (and the transfer worlds), two or more also
     together, each with its mirror image (ours); the teacher on GT depth in ``basic``.
     ``workers`` > 1 trains the parents (and the students) that many at a time, one
-    process per core, and flies the evaluations' chunks likewise. Everything lands in
+    process per core, and flies the evaluations' chunks likewise (``executor``: where,
+    ``executor.get_executor``). Everything lands in
     ``out/distil`` (results.json, results.md)."""
     budget = {**FULL, **(budget or {})}
+    ex = get_executor(executor, workers)
     scenarios = ["basic"] + (list(TRANSFER) if tables in ("6", "both") else [])
     depth_models = _depth_models(out, seed, budget, scenarios, skip_depth)
     agents = out / "distil"
@@ -331,7 +353,7 @@ def reproduce_distilled(out: Path, seed: int = 0, students: int = 1,
                             eps_decay_steps=budget["eps_decay"], replay_capacity=100_000,
                             updates_per_step=budget["updates_per_step"],
                             conv_channels=torso), budget), agents / name, None)
-        for name, offset, torso in PARENTS], workers)
+        for name, offset, torso in PARENTS], ex)
     teacher = "+".join(str(m) for m in parents)
     stage1 = _train_qnet(_stage(teacher, parents[2], seed, budget["stage1_steps"], budget,
                                 "gt", init_widen=True, distil_kl=0.0, mirror_augment=False),
@@ -339,17 +361,17 @@ def reproduce_distilled(out: Path, seed: int = 0, students: int = 1,
     trained = _train_all([
         (_stage(teacher, stage1, seed + k, budget["stage2_steps"], budget, "pred"),
          agents / f"stage2_student_s{seed + k}", depth_models["basic"])
-        for k in range(students)], workers)
+        for k in range(students)], ex)
     for model in trained:
         for sc in scenarios:
             results["students"].append(_evaluate(model, sc, budget, seed, "pred",
-                                                 depth_models[sc], workers))
+                                                 depth_models[sc], ex))
     if len(trained) > 1:     # ours: the students flown together, with mirror images
         together = "+".join(str(m) for m in trained)
         results["together"] = [_evaluate(together, sc, budget, seed, "pred",
-                                         depth_models[sc], workers, mirror=True)
+                                         depth_models[sc], ex, mirror=True)
                                for sc in scenarios]
-    results["teacher"] = _evaluate(teacher, "basic", budget, seed, "gt", None, workers)
+    results["teacher"] = _evaluate(teacher, "basic", budget, seed, "gt", None, ex)
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
     agents.mkdir(parents=True, exist_ok=True)
     (agents / "results.json").write_text(json.dumps(results, indent=2))
@@ -402,9 +424,9 @@ The full tables: python -m minid3rqn reproduce (hours; docs/results.md)."""
 
 
 def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
-                    budget: dict | None = None) -> dict:
+                    budget: dict | None = None, executor: str = "local") -> dict:
     """Tables 5 and 6 at the classroom budget (the block above): trains DDQN, D3QN, DDRQN
-    and D3RQN in ``basic`` (``workers`` at a time), flies them with Straight and Random
+    and D3RQN in ``basic`` (``workers`` at a time, with ``executor``), flies them with Straight and Random
     on ``QUICK_FLIGHTS`` test flights in basic, and the D3RQN in the three new worlds,
     each on its shipped DispNet. A finished net is kept (model.npz) and reused; its
     checkpoint (the whole replay) is removed. ``budget`` (tests) overrides QUICK_TRAIN's
@@ -414,7 +436,7 @@ def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
     out = out / "quick"
     depth_basic = MODELS / "depth_basic.npz"
     _train_all([(TrainConfig(variant=v, seed=seed, **budget), out / "agent" / v, depth_basic)
-                for v in QUICK_FAMILY], workers)
+                for v in QUICK_FAMILY], get_executor(executor, workers))
     for variant in QUICK_FAMILY:
         (out / "agent" / variant / "checkpoint.npz").unlink(missing_ok=True)
     models = [out / "agent" / v / "model.npz" for v in QUICK_FAMILY]
@@ -422,10 +444,11 @@ def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
     def fly(spec, scenario):         # Straight and Random read no depth: the same flights
         if spec in ("straight", "random"):         # on GT depth, without the DispNet
             cfg = EvalConfig(scenario=scenario, flights=flights, seed=TEST_WORLDS,
-                             workers=workers)
+                             workers=workers, executor=executor)
             return evaluate_spec(spec, cfg, progress=False)[1]
         cfg = EvalConfig(scenario=scenario, flights=flights, seed=TEST_WORLDS, depth="pred",
-                         workers=workers, depth_model=str(MODELS / f"depth_{scenario}.npz"))
+                         workers=workers, executor=executor,
+                         depth_model=str(MODELS / f"depth_{scenario}.npz"))
         est = load_depth_estimator(cfg.depth_model)
         return evaluate_spec(str(spec), cfg, est, progress=False)[1]
     results = {"recipe": "quick", "budget": {**budget, "flights": flights}, "seed": seed,
