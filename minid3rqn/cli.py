@@ -29,6 +29,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
                "ours: train a student Q-net from a GT-depth teacher's Q-values"),
     "evaluate": ("minid3rqn.rl.commands", "success rate over many flights, with a 95%% CI"),
     "reproduce": ("minid3rqn.rl.commands", "rerun Tables 5 and 6 end to end (--quick)"),
+    "sweep": ("minid3rqn.rl.commands",
+              "train one configuration with several seeds: the spread of their success rates"),
     "pool": ("minid3rqn.rl.pool", "pool evaluate --json records by world; A against B"),
     # sensing (unsupervised depth)
     "collect": ("minid3rqn.depth.commands", "fly a scripted pilot and save image sequences"),

@@ -1,7 +1,9 @@
-"""The Q-learning commands: ``train-agent``, ``distil``, ``evaluate``, ``fly``, ``reproduce``.
+"""The Q-learning commands: ``train-agent``, ``distil``, ``evaluate``, ``fly``, ``reproduce``,
+``sweep``.
 
 Each is a thin shell over a library function (``rl.train.train``, ``rl.distill.distil``,
-``rl.evaluate.evaluate_spec``, ``rl.fly.fly``, ``rl.reproduce``); the options come from
+``rl.evaluate.evaluate_spec``, ``rl.fly.fly``, ``rl.reproduce``, ``rl.sweep.sweep``); the
+options come from
 the config dataclasses (``minid3rqn/config.py``). ``minid3rqn/cli.py`` registers them.
 """
 from __future__ import annotations
@@ -309,4 +311,37 @@ def run_reproduce(args) -> int:
                                 students=cfg.students, **how)
     except ValueError as e:
         raise UsageError(f"--out: {e}") from None
+    return 0
+
+
+# -- sweep -----------------------------------------------------------------------------------
+def add_arguments_sweep(p: argparse.ArgumentParser) -> None:
+    from .sweep import SweepConfig
+    add_arguments(p, SweepConfig, hide=("seed",))
+    g = p.add_argument_group("files")
+    g.add_argument("--depth-model", default=None,
+                   help="DispNet .npz when the nets read predicted depth "
+                        "(default: the shipped one)")
+    g.add_argument("--out", default=None, help="the sweep's folder, one run per seed "
+                   "(default runs/sweep/<variant>_<scenario>_<depth>); a sweep started again "
+                   "goes on from the runs it holds")
+    g.add_argument("--smoke", action="store_true", help="a few hundred steps per seed (tests)")
+
+
+def run_sweep(args) -> int:
+    from .sweep import SweepConfig, sweep
+    from .train import SMOKE, TrainConfig
+    base = SweepConfig(train=TrainConfig(**SMOKE), flights=8) if args.smoke else None
+    cfg = from_args(SweepConfig, args, base=base)
+    t = cfg.train
+    name = f"{t.variant}_{t.scenario}_{t.depth}"
+    out = Path(args.out) if args.out else RUNS / "sweep" / (("smoke_" if args.smoke else "") + name)
+    out = check_output(out, "--out", folder=True)
+    _estimator(t.depth, args.depth_model, t.scenario)     # a missing DispNet: said now
+    if t.init_model:
+        _check_init_model(t)
+    try:
+        sweep(cfg, out, args.depth_model, progress=_progress())
+    except ValueError as e:
+        raise UsageError(f"--out: {str(e).removeprefix('resume: ')}") from None
     return 0
