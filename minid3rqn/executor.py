@@ -341,9 +341,11 @@ class LocalPool:
 MARKER = ".minid3rqn-executor-{}"
 
 
-def _ray_task(fn, shared, task, cwd: str, markers: list[str]):
+def _ray_task(fn, shared, task, cwd: str, markers: list[str], reports):
     """One task on a Ray worker, in the driver's working directory, after checking that
-    the folders it writes are the driver's (each holds the driver's marker file)."""
+    the folders it writes are the driver's (each holds the driver's marker file). The
+    driver's Ctrl-C reaches it as Ctrl-C (``ray.cancel``): a training saves its
+    checkpoint, and its RunStopped message goes to the driver's ``reports`` actor."""
     import socket
     try:
         os.chdir(cwd)
@@ -354,7 +356,34 @@ def _ray_task(fn, shared, task, cwd: str, markers: list[str]):
         if not os.path.isfile(marker):
             raise NotShared(f"{str(Path(marker).parent)!r} is not on storage shared with "
                             f"{socket.gethostname()} (it cannot see the driver's marker file)")
-    return fn(shared, task)
+    try:
+        return fn(shared, task)
+    except RunStopped as e:              # Ray turns a raised KeyboardInterrupt into a
+        import ray                       # cancellation: the message goes this way
+        ray.get(reports.report.remote(str(e)))
+        return _Stopped(str(e))
+    except KeyboardInterrupt:
+        return _Stopped(None)
+
+
+class _Stopped:
+    """What a Ray task stopped by Ctrl-C returns: a training's RunStopped message."""
+
+    def __init__(self, message):
+        self.message = message
+
+
+class _Reports:
+    """The RunStopped messages of the trainings the driver's Ctrl-C stopped."""
+
+    def __init__(self):
+        self.messages = []
+
+    def report(self, message: str) -> None:
+        self.messages.append(message)
+
+    def all(self) -> list:
+        return self.messages
 
 
 class NotShared(Exception):
@@ -383,12 +412,17 @@ class RayExecutor:
     def _init(self):
         ray = self.ray
         if not ray.is_initialized():
-            # a local Ray's workers import this copy of minid3rqn, as this process does
+            # the workers import this copy of minid3rqn, as this process does (where the
+            # node has it at the same path: a shared file system; else their own install)
             root = str(Path(__file__).resolve().parent.parent)
             path = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)
-            env = {"env_vars": {"PYTHONPATH": path}} if not os.environ.get("RAY_ADDRESS") \
-                else None
+            env = {"env_vars": {"PYTHONPATH": path}}
+            handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
             ray.init(runtime_env=env, log_to_driver=True, configure_logging=False)
+            if threading.current_thread() is threading.main_thread():
+                for sig, handler in handlers.items():   # Ctrl-C and SIGTERM stay ours
+                    if handler is not None:
+                        signal.signal(sig, handler)
 
     def run(self, fn, tasks: list, shared=None, on_result=None, *, check_folders=()) -> list:
         """As ``LocalPool.run``; ``check_folders``: the folders the tasks write, which
@@ -398,29 +432,29 @@ class RayExecutor:
         if not tasks:
             return []
         self._init()
-        markers = []
-        for folder in dict.fromkeys(Path(f).resolve() for f in check_folders):
-            folder.mkdir(parents=True, exist_ok=True)
-            marker = folder / MARKER.format(uuid.uuid4().hex)
-            marker.write_text(f"written by pid {os.getpid()} to check that Ray's workers "
-                              f"share this folder; removed when the tasks end\n")
-            markers.append(str(marker))
+        markers = self._markers(check_folders)
         remote = ray.remote(num_cpus=1, max_retries=RETRIES)(_ray_task)
+        reports = ray.remote(num_cpus=0)(_Reports).remote()
         cwd = os.getcwd()
         shared_ref = ray.put(shared)
-        refs = [remote.remote(fn, shared_ref, task, cwd, markers) for task in tasks]
+        refs = [remote.remote(fn, shared_ref, task, cwd, markers, reports) for task in tasks]
         index = {ref: i for i, ref in enumerate(refs)}
         results = [None] * len(tasks)
         pending = list(refs)
+        stopped = []
         try:
             while pending:
                 ready, pending = ray.wait(pending, num_returns=1, timeout=0.5)
                 for ref in ready:
-                    results[index[ref]] = self._get(ref)
+                    result = self._get(ref)
+                    if isinstance(result, _Stopped):    # stopped on its node: all stop
+                        stopped.append(result)
+                        raise KeyboardInterrupt
+                    results[index[ref]] = result
                     if on_result is not None:
-                        on_result(index[ref], results[index[ref]])
+                        on_result(index[ref], result)
         except KeyboardInterrupt:
-            raise self._stop(pending) from None
+            raise self._stop(pending, reports, stopped) from None
         except BaseException:
             for ref in pending:
                 ray.cancel(ref, force=True)
@@ -429,6 +463,19 @@ class RayExecutor:
             for marker in markers:
                 Path(marker).unlink(missing_ok=True)
         return results
+
+    @staticmethod
+    def _markers(folders) -> list[str]:
+        """A marker file in each folder the tasks write (made if missing): a task that
+        cannot see it runs where the folder is not shared."""
+        markers = []
+        for folder in dict.fromkeys(Path(f).resolve() for f in folders):
+            folder.mkdir(parents=True, exist_ok=True)
+            marker = folder / MARKER.format(uuid.uuid4().hex)
+            marker.write_text(f"written by pid {os.getpid()} to check that Ray's workers "
+                              f"share this folder; removed when the tasks end\n")
+            markers.append(str(marker))
+        return markers
 
     def _get(self, ref):
         ray = self.ray
@@ -441,22 +488,25 @@ class RayExecutor:
                                  f"system every node mounts at the same path") from None
             raise cause from None
 
-    def _stop(self, pending) -> BaseException:
-        """Ctrl-C: every running task is interrupted as by Ctrl-C (a training saves its
-        checkpoint), and the stopped trainings are named."""
+    def _stop(self, pending, reports, stopped) -> BaseException:
+        """Ctrl-C: every task is interrupted as by Ctrl-C (a training saves its
+        checkpoint; a task not started does not start), and the stopped trainings are
+        named. A second Ctrl-C ends every task at once."""
         ray = self.ray
         for ref in pending:
             ray.cancel(ref, force=False)
-        messages = []
-        for ref in pending:
-            try:
-                ray.get(ref)
-            except ray.exceptions.RayTaskError as e:
-                cause = getattr(e, "cause", None)
-                if isinstance(cause, RunStopped):
-                    messages.append(str(cause))
-            except (ray.exceptions.TaskCancelledError, ray.exceptions.RayError):
-                pass
+        try:
+            for ref in pending:
+                try:
+                    ray.get(ref)
+                except ray.exceptions.RayError:
+                    pass
+            messages = ray.get(reports.all.remote())
+        except KeyboardInterrupt:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            return KeyboardInterrupt()
+        messages += [s.message for s in stopped if s.message and s.message not in messages]
         return _stopped(messages)
 
 
