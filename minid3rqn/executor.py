@@ -30,10 +30,13 @@ their parent:
 
 **Ray** (``--executor ray``, ``pip install -e ".[ray]"``) runs each task as a Ray task
 (one CPU each) on the cluster ``ray.init()`` finds: ``RAY_ADDRESS``, or a local one
-started for the run. Ray reruns a task lost with its node (``max_retries``). Trainings
-read and write their run folders there, so the folders (and the working directory, for
-relative paths) must be on storage every node mounts at the same path: each task checks
-that it sees a marker file the driver wrote, and a task that does not fails in one line.
+started for the run. Ray reruns a task lost with its node or its worker
+(``max_retries``). Ctrl-C and SIGTERM of the command reach every task as Ctrl-C
+(``ray.cancel``): a training saves its checkpoint and the stopped runs are named, as
+with the local pool; a task not yet started does not start. Trainings read and write
+their run folders there, so the folders (and the working directory, for relative paths)
+must be on storage every node mounts at the same path: each task checks that it sees a
+marker file the driver wrote, and a task that does not fails in one line.
 """
 from __future__ import annotations
 
