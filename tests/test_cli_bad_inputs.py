@@ -132,6 +132,13 @@ CASES = [
     ("reproduce --recipe nope", "--recipe: invalid choice: 'nope'"),
     ("reproduce --quick --out {fx}/afile", "--out: '{fx}/afile' is a file"),
     ("reproduce --quick --out " + str(MODELS), "--out: '" + str(MODELS) + "' is inside"),
+    ("reproduce --executor dask", "--executor: invalid choice: 'dask'"),
+    ("sweep --seeds 0,0", "--seeds: expected different whole numbers >= 0"),
+    ("sweep --seeds one", "--seeds: expected numbers joined by ','"),
+    ("sweep --flights 0", "--flights: expected a number >= 1"),
+    ("sweep --workers 0", "--workers: expected a number >= 1"),
+    ("sweep --out {fx}/afile", "--out: '{fx}/afile' is a file"),
+    ("sweep --depth pred --depth-model {fx}/nope.npz", "--depth-model: depth model"),
     # pool
     ("pool", "the following arguments are required: files"),
     ("pool nope.jsonl", "no such results file: nope.jsonl"),
