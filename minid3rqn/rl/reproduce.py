@@ -426,9 +426,9 @@ The full tables: python -m minid3rqn reproduce (hours; docs/results.md)."""
 def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
                     budget: dict | None = None, executor: str = "local") -> dict:
     """Tables 5 and 6 at the classroom budget (the block above): trains DDQN, D3QN, DDRQN
-    and D3RQN in ``basic`` (``workers`` at a time, with ``executor``), flies them with Straight and Random
-    on ``QUICK_FLIGHTS`` test flights in basic, and the D3RQN in the three new worlds,
-    each on its shipped DispNet. A finished net is kept (model.npz) and reused; its
+    and D3RQN in ``basic`` (``workers`` at a time, with ``executor``), flies them with
+    Straight and Random on ``QUICK_FLIGHTS`` test flights in basic, and the D3RQN in the
+    three new worlds, each on its shipped DispNet. A finished net is kept (model.npz) and reused; its
     checkpoint (the whole replay) is removed. ``budget`` (tests) overrides QUICK_TRAIN's
     entries (and "flights")."""
     budget = {**QUICK_TRAIN, "flights": QUICK_FLIGHTS, **(budget or {})}
