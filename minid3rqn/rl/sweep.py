@@ -24,10 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import as_dict, at_least, command_line, setting, shell_command, validate
+from ..config import at_least, command_line, setting, shell_command, validate
 from ..executor import EXECUTORS, get_executor
-from .evaluate import EvalConfig, evaluate_spec
-from .flights import TEST_WORLDS
+from .evaluate import TEST_WORLDS, EvalConfig, evaluate_spec
 from .train import TrainConfig
 
 
