@@ -38,7 +38,7 @@ def visible_options(name: str) -> list[str]:
 
 
 @pytest.mark.parametrize("names, most", [(("train-agent",), 20), (("distil",), 10),
-                                         (("evaluate",), 12), (("fly",), 8),
+                                         (("evaluate",), 13), (("fly",), 8),
                                          (("reproduce",), 8), (("pool",), 4),
                                          (("check", "exercise"), 6)])
 def test_each_command_keeps_to_its_option_budget(names, most):
