@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shlex
+import sys
 import types
 import typing
 from dataclasses import MISSING, field, fields, is_dataclass
@@ -75,6 +77,60 @@ def between(lo, hi):
 
 def positive(v):
     return None if v > 0 else "a number > 0"
+
+
+def memory_bytes() -> int:
+    """This machine's physical memory in bytes (8 GB where it cannot be asked)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):
+        return 8 << 30
+
+
+def fits_memory(lo: int, each: float, what: str):
+    """A check: a count >= ``lo`` whose ``what`` (``each`` bytes apiece) fit in half this
+    machine's memory."""
+    def check(v):
+        most = max(lo, int(memory_bytes() / 2 // each))
+        if lo <= v <= most:
+            return None
+        return (f"a number >= {lo}" if v < lo else
+                f"at most {most:,} ({what} take about {each / 1e3:,.0f} KB each; half this "
+                f"machine's {memory_bytes() / 2 ** 30:.1f} GB memory)")
+    return check
+
+
+def cores() -> int:
+    """The CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def capped_workers(cfg, name: str = "workers") -> None:
+    """``cfg.<name>`` (worker processes) above the cores this process may use is set to
+    their number, with a note on stderr: more processes than cores only share them."""
+    n = cores()
+    if getattr(cfg, name) > n:
+        print(f"note: {name} {getattr(cfg, name)} is more than the {n} cores of this "
+              f"machine; using {n}", file=sys.stderr)
+        object.__setattr__(cfg, name, n)
+
+
+def check_seed(seed, name: str = "seed") -> int:
+    """``seed`` as the integer >= 0 that seeds NumPy; a ValueError naming ``name``, in
+    one line, for anything else (a negative, fractional or text seed): where a seed
+    enters the library, before NumPy sees it."""
+    if isinstance(seed, (bool, float, str)) or not isinstance(seed, (int, np_integer())) \
+            or seed < 0:
+        raise ValueError(f"{name}: expected an integer >= 0; got {seed!r}")
+    return int(seed)
+
+
+def np_integer():
+    import numpy as np
+    return np.integer
 
 
 # -- types ------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io import write_json
 from .checks import Exercise, find
 from .student import line_in, working_copy
 
@@ -214,8 +215,7 @@ def run_agent_exercise(ex: Exercise, module, summary: dict | None = None, budget
                                depth_estimator=est, **test)
         result.update({"pred_success": pred.rate, "pred_ci": [pred.ci_low, pred.ci_high],
                        "pred_mean_steps": pred.mean_steps, "depth_model": est_path})
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "result.json").write_text(json.dumps(result, indent=2))
+    write_json(run_dir / "result.json", result)
     print("\n" + _said(result))
     print(summary_table(ex.name, out))
     return result
@@ -304,7 +304,7 @@ def run_depth_exercise(ex: Exercise, module, budget: str = "small", seed: int = 
     result = {"exercise": ex.name, "tag": tag, "budget": budget, "seed": seed,
               **{k: float(v) for k, v in metrics.items() if np.isscalar(v)},
               "train_seconds": seconds}
-    (run_dir / "result.json").write_text(json.dumps(result, indent=2))
+    write_json(run_dir / "result.json", result)
     print(f"\n{tag}: abs rel {result['abs_rel']:.3f}, delta<1.25 {result['a1']:.3f}, trained "
           f"in {seconds / 60:.1f} min; pictures (RGB | predicted | GT): "
           f"{run_dir / 'pictures.png'}")

@@ -30,7 +30,6 @@ evaluation and the model file.
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, replace
@@ -42,8 +41,8 @@ from .. import autograd as ag
 from ..autograd.optim import Adam
 from ..config import (as_dict, at_least, changed_settings, command_line, flat_settings,
                       positive, setting, shell_command, validate)
-from ..io import (RunStopped, StopRequest, load_npz, machine, read_metadata, reading_checkpoint,
-                  save_npz)
+from ..io import (RunStopped, StopRequest, WriteError, load_npz, machine, read_metadata,
+                  reading_checkpoint, save_npz, whole, write_json)
 from ..nets.dispnet import DispNet
 from ..nets.posenet import PoseNet
 from ..world.geometry import relative_transform
@@ -360,9 +359,13 @@ def train_depth(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
     t_data = time.time() - t0
     trainer = Trainer(train, cfg, checkpoint=run_dir / "checkpoint.npz", resume=resume,
                       settings={"data": str(train_path.resolve())})
-    done = [run_dir / "model.npz", run_dir / "results.json"]
-    if trainer.iteration >= cfg.iterations and all(p.is_file() for p in done):
-        return done[0]                   # a finished run: its model and results stand
+    done = [run_dir / "model.npz", run_dir / "results.json", run_dir / "pictures.png"]
+    if trainer.iteration >= cfg.iterations:
+        if all(whole(p) for p in done):
+            return done[0]               # a finished run: its model and results stand
+        damaged = ", ".join(p.name for p in done if not whole(p))
+        print(f"train-depth: the run has finished, but {damaged} is missing or damaged; "
+              f"writing it again")
     if trainer.iteration:
         print(f"train-depth: resuming at iteration {trainer.iteration}")
     elif init_from:
@@ -380,11 +383,15 @@ def train_depth(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
             "train_frames": len(train), "test_frames": len(test),
             "train_seconds": round(t_train, 1), "data_seconds": round(t_data, 1),
             "machine": machine(), "history": trainer.history[-1:]}
-    model = estimator.save(run_dir / "model.npz", meta)
-    (run_dir / "results.json").write_text(json.dumps(meta, indent=2))
-    rows = np.linspace(0, len(test) - 1, 6).astype(int)
-    comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]), test.depth[rows],
-                       run_dir / "pictures.png")
+    try:
+        model = estimator.save(run_dir / "model.npz", meta)
+        write_json(run_dir / "results.json", meta)
+        rows = np.linspace(0, len(test) - 1, 6).astype(int)
+        comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]),
+                           test.depth[rows], run_dir / "pictures.png")
+    except WriteError as e:             # the run is measured: the command says so
+        e.measured = meta
+        raise
     return model
 
 

@@ -12,11 +12,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import viz
+from ..io import WriteError
 from ..config import at_least, setting, validate
 from ..world import DroneEnv, render_batch, topdown
 from .evaluate import by_world, run_flights, wilson_interval
 from .mirror import MirroredPolicy
-from .models import actions_and_camera, load_qnet_policy
+from .models import actions_and_camera, ensemble_members, load_qnet_policy
 from .observe import MAX_DEPTH
 from .policies import EnsemblePolicy
 
@@ -61,7 +62,7 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
     with. ``mirror``: each net also flies the mirrored view (``rl.mirror``)."""
     t0 = time.time()
     members = list(model) if isinstance(model, (list, tuple)) else \
-        [load_qnet_policy(part) for part in str(model).split("+")]
+        [load_qnet_policy(part) for part in ensemble_members(model)]
     actions, camera = actions_and_camera(*members)
     if mirror:
         members += [MirroredPolicy(m) for m in members]
@@ -105,11 +106,16 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
     # one to read for "how well does it fly this scenario", and it is wider
     w = by_world(success, env.scene_seeds)
     one_world = len(w.flights) < 2          # then there is no interval by world
-    gif = viz.write_gif(frames_out, gif, fps=4)
-    return {"scenario": scenario, "seed": seed, "flights": n_flights, "successes": k,
+    out = {"scenario": scenario, "seed": seed, "flights": n_flights, "successes": k,
             "success_rate": k / n_flights, "ci95": [round(lo, 4), round(hi, 4)],
             "worlds": len(w.flights),
             "ci95_by_world": None if one_world else [round(w.ci_low, 4), round(w.ci_high, 4)],
             "design_effect": None if one_world else round(w.design_effect, 3),
             "depth": depth, "gif": str(gif), "seconds": round(time.time() - t0, 1),
             "flight0_steps": int(survived[0])}
+    try:
+        viz.write_gif(frames_out, gif, fps=4)
+    except WriteError as e:              # the flights are measured: say so with the error
+        e.measured = {**out, "gif": None}
+        raise
+    return out

@@ -29,7 +29,6 @@ Every model lands with the ``train-agent`` or ``distil`` command that makes it a
 """
 from __future__ import annotations
 
-import json
 import math
 import multiprocessing as mp
 import time
@@ -37,6 +36,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..config import at_least, setting, validate
+from ..io import write_file, write_json
 from .distill import DistilConfig, distil, student
 from .evaluate import EvalConfig, evaluate_spec
 from .evaluate import TEST_WORLDS
@@ -248,9 +248,9 @@ def reproduce(out: Path, seed: int = 0, skip_depth: bool = False, workers: int =
     for sc in TRANSFER:
         results["table6"] += run_eval(baselines + [models["d3rqn"]], sc)
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
-    (out / "results.json").write_text(json.dumps(results, indent=2))
-    (out / "results.md").write_text(markdown_tables(results))
-    print(markdown_tables(results))
+    print(markdown_tables(results))       # said first: a failed write loses no number
+    write_json(out / "results.json", results)
+    write_file(out / "results.md", markdown_tables(results))
     return results
 
 
@@ -352,9 +352,9 @@ def reproduce_distilled(out: Path, seed: int = 0, students: int = 1,
     results["teacher"] = _evaluate(teacher, "basic", budget, seed, "gt", None, workers)
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
     agents.mkdir(parents=True, exist_ok=True)
-    (agents / "results.json").write_text(json.dumps(results, indent=2))
-    (agents / "results.md").write_text(distilled_table(results))
-    print(distilled_table(results))
+    print(distilled_table(results))       # said first: a failed write loses no number
+    write_json(agents / "results.json", results)
+    write_file(agents / "results.md", distilled_table(results))
     return results
 
 
@@ -438,7 +438,7 @@ def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
         results["table6"] += [fly(s, sc) for s in ["straight", "random", models[0]]]
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
     text = markdown_tables(results) + "\n" + QUICK_NOTE + "\n"
-    (out / "results.json").write_text(json.dumps(results, indent=2))
-    (out / "results.md").write_text(text)
-    print("\n" + text)
+    print("\n" + text)                    # said first: a failed write loses no number
+    write_json(out / "results.json", results)
+    write_file(out / "results.md", text)
     return results

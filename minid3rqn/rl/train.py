@@ -21,6 +21,7 @@ flights' state and every generator, so a resumed run is the run that was cut off
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import time
@@ -31,7 +32,7 @@ import numpy as np
 
 from ..config import (ConfigError, as_dict, at_least, between, changed_settings, flat_settings,
                       positive, setting, validate)
-from ..io import RunStopped, StopRequest, load_npz, reading_checkpoint, save_npz
+from ..io import RunStopped, StopRequest, load_npz, reading_checkpoint, save_npz, write_file
 from ..nets.qnet import QNetConfig
 from ..world import DroneEnv
 from .agent import Agent, AgentConfig, FrameStacker
@@ -231,10 +232,11 @@ class Run:
 
     def write_curve(self) -> None:
         keys = list(dict.fromkeys(k for row in self.curve for k in row))
-        with open(self.out / "curve.csv", "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=keys, restval="")
-            writer.writeheader()
-            writer.writerows(self.curve)
+        text = io.StringIO(newline="")
+        writer = csv.DictWriter(text, fieldnames=keys, restval="")
+        writer.writeheader()
+        writer.writerows(self.curve)
+        write_file(self.out / "curve.csv", text.getvalue())
         try:
             from ..viz import learning_curve_png
             learning_curve_png(self.curve, self.out / "curve.png", title=f"{self.cfg.variant} "
