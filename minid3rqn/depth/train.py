@@ -39,14 +39,15 @@ import numpy as np
 
 from .. import autograd as ag
 from ..autograd.optim import Adam
-from ..config import (as_dict, at_least, changed_settings, command_line, flat_settings,
-                      positive, setting, shell_command, validate)
+from ..config import (as_dict, at_least, changed_settings, command_line, fits_memory,
+                      flat_settings, positive, setting, shell_command, validate)
 from ..io import (RunStopped, StopRequest, WriteError, load_npz, machine, read_metadata,
                   reading_checkpoint, save_npz, whole, write_json)
 from ..nets.dispnet import DispNet
 from ..nets.posenet import PoseNet
 from ..world.geometry import relative_transform
-from .data import CollectConfig, Sequence, collect_sequence, held_out, load_sequence
+from .data import (FRAME_BYTES, CollectConfig, Sequence, collect_sequence, held_out,
+                   load_sequence)
 from .evaluate import DepthEstimator, LearningCurve, comparison_picture, evaluate
 from .geometry import matrix_to_pose_vec
 from .losses import STEP, LossConfig, view_synthesis_loss
@@ -85,7 +86,7 @@ class TrainConfig:
                               check=at_least(0))
     test_frames: int = setting(500, "held-out frames collected for the run (other worlds: "
                                     "seed + 1000)", source="run", cli="more",
-                               check=at_least(3))
+                               check=fits_memory(3, FRAME_BYTES, "frames"))
     loss: LossConfig = setting(default_factory=LossConfig, help="the loss (losses.py)")
 
     def __post_init__(self):

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import viz
+from ..config import FLIGHT_BYTES, at_least, check_seed, fits_memory, setting, validate
 from ..io import WriteError
-from ..config import at_least, setting, validate
 from ..world import DroneEnv, render_batch, topdown
 from .evaluate import by_world, run_flights, wilson_interval
 from .mirror import MirroredPolicy
@@ -35,7 +35,8 @@ class FlyConfig:
     depth: str = setting("pred", "what the Q-net reads: the DispNet's depth or GT depth",
                          source="run", choices=("gt", "pred"))
     flights: int = setting(32, "flights for the success rate (the DispNet runs on every "
-                               "frame: keep it small)", source="run", check=at_least(1))
+                               "frame: keep it small)", source="run",
+                          check=fits_memory(1, FLIGHT_BYTES, "flights flown together"))
     seed: int | None = setting(None, "world seed (none: random)", source="run",
                                check=at_least(0))
     gif: str = setting("runs/fly.gif", "the GIF of flight 0", source="run")
@@ -61,6 +62,7 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
     the loaded policies; they fly with the action table and camera they were trained
     with. ``mirror``: each net also flies the mirrored view (``rl.mirror``)."""
     t0 = time.time()
+    seed = check_seed(seed, "fly: seed")
     members = list(model) if isinstance(model, (list, tuple)) else \
         [load_qnet_policy(part) for part in ensemble_members(model)]
     actions, camera = actions_and_camera(*members)

@@ -35,7 +35,7 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ..config import at_least, setting, validate
+from ..config import at_least, capped_workers, setting, validate
 from ..io import write_file, write_json
 from .distill import DistilConfig, distil, student
 from .evaluate import EvalConfig, evaluate_spec
@@ -72,7 +72,8 @@ class ReproduceConfig:
                                       "them", source="run")
     workers: int = setting(1, "processes for the evaluations; --quick and --recipe distil "
                               "also train that many nets at a time (run with "
-                              "OMP_NUM_THREADS=1)", source="run", check=at_least(1))
+                              "OMP_NUM_THREADS=1; at most the cores)", source="run",
+                           check=at_least(1))
     students: int = setting(1, "--recipe distil: students of stage 2 (seeds 0, 1, ...)",
                             source="run", check=at_least(1))
     seed: int = setting(0, "seeds every training (nets, worlds, exploration); the test "
@@ -80,6 +81,7 @@ class ReproduceConfig:
 
     def __post_init__(self):
         validate(self)
+        capped_workers(self)
 
 
 # The shipped depth recipe (docs/depth.md, sections 5 and 7): basic from scratch with the

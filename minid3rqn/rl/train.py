@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import (ConfigError, as_dict, at_least, between, changed_settings, flat_settings,
-                      positive, setting, validate)
+from ..config import (FLIGHT_BYTES, FLIGHT_STEPS, ConfigError, as_dict, at_least, between,
+                      changed_settings, fits_memory, flat_settings, positive, setting, validate)
 from ..io import RunStopped, StopRequest, load_npz, reading_checkpoint, save_npz, write_file
 from ..nets.qnet import QNetConfig
 from ..world import DroneEnv
@@ -65,8 +65,9 @@ class TrainConfig:
     batch_size: int = setting(32, "replay windows per update", source="paper",
                               check=at_least(1))
     seq_len: int | None = setting(None, "steps per replay window (5; none: 5 for the "
-                                        "recurrent variants, 1 for the others)",
-                                  source="paper", check=at_least(1))
+                                        "recurrent variants, 1 for the others; at most "
+                                        "a flight's 50 steps)",
+                                  source="paper", check=between(1, FLIGHT_STEPS))
     agent: AgentConfig = setting(default_factory=AgentConfig)
     # -- the budget (ours: scaled to a laptop)
     steps: int = setting(60_000, "environment transitions (all flights)", source="budget",
@@ -74,7 +75,8 @@ class TrainConfig:
     learning_starts: int = setting(5_000, "transitions before the first update",
                                    source="budget", check=at_least(0))
     replay_capacity: int = setting(100_000, "frames in the replay (3.3 KB each: 100,000 "
-                                            "take 333 MB)", source="budget", check=at_least(64))
+                                            "take 333 MB)", source="budget",
+                                   check=fits_memory(64, 3.3e3, "replay frames"))
     eps_decay_steps: int = setting(50_000, "transitions over which epsilon falls",
                                    source="budget", check=at_least(1))
     hidden: int = setting(128, "LSTM / fully connected width", source="budget",
@@ -84,7 +86,8 @@ class TrainConfig:
     eps_end: float = setting(0.05, "epsilon after eps_decay_steps", source="budget",
                              check=between(0, 1), cli="more")
     n_envs: int = setting(16, "flights stepped together", source="budget",
-                          check=at_least(1), cli="more")
+                          check=fits_memory(1, FLIGHT_BYTES, "flights stepped together"),
+                          cli="more")
     updates_per_step: float = setting(4.0, "updates per step of all flights (1.0 gave 0.764 "
                                            "against 0.871: docs/results.md)",
                                       source="budget", check=positive, cli="more")
@@ -100,8 +103,9 @@ class TrainConfig:
     depth: str = setting("gt", "what the Q-net reads: GT depth or the DispNet's",
                          source="run", choices=("gt", "pred"))
     init_model: str = setting("", "start from this Q-net .npz (fine-tuning)", source="run")
-    stack: int = setting(1, "frames per observation (5: a window as channels)",
-                         source="run", check=at_least(1), cli="more")
+    stack: int = setting(1, "frames per observation (5: a window as channels; at most a "
+                            "flight's 50 steps)",
+                         source="run", check=between(1, FLIGHT_STEPS), cli="more")
     log_every: int = setting(2_000, "transitions between learning-curve rows",
                              source="run", check=at_least(1), cli="more")
     checkpoint_every: int = setting(10_000, "transitions between checkpoints",
