@@ -122,10 +122,11 @@ def capped_workers(cfg, name: str = "workers") -> None:
 # ``rl.flights.FlightsConfig.max_steps``): a replay window or a frame stack longer than a
 # flight holds only padding.
 FLIGHT_STEPS = 50
-# Flights stepped together (a chunk of evaluate, fly's flights, a training's flights): about
-# 1 MB each with the DispNet's depth (its activations on every frame), 0.15 MB on GT depth
-# (measured with /usr/bin/time on evaluate --chunk 50 and 250, 100 and 1000).
-FLIGHT_BYTES = 1e6
+# Flights stepped together (a chunk of evaluate, fly's flights, a training's flights): the
+# peak memory of evaluate grows by about 0.2 MB a flight with the DispNet's depth (--chunk
+# 50 -> 250: 114 -> 153 MB) and 0.15 MB on GT depth (--chunk 100 -> 1000: 70 -> 206 MB),
+# measured with /usr/bin/time; 0.25 MB leaves room.
+FLIGHT_BYTES = 250e3
 
 
 def check_seed(seed, name: str = "seed") -> int:

@@ -526,6 +526,15 @@ class DamagedCheckpoint(ValueError):
     """A checkpoint that ``--resume`` cannot continue; the CLI prints it as one line."""
 
 
+def check_checkpoint_weights(arrays: dict) -> None:
+    """ValueError if a checkpoint's float arrays hold NaN or inf: such a file is damaged
+    (a training that diverges stops before it saves), whatever its weights say."""
+    for name, value in arrays.items():
+        if value.dtype.kind == "f" and not np.isfinite(value).all():
+            raise ValueError(f"its array {name!r} holds NaN or inf: the file is damaged (a "
+                             f"training that diverges stops before it saves)")
+
+
 @contextmanager
 def reading_checkpoint(path):
     """Around restoring a run from the checkpoint ``path``: an array or a value that is

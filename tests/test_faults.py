@@ -388,3 +388,155 @@ def test_a_seed_that_is_no_seed_is_named_where_it_enters():
         with pytest.raises(ValueError, match=r"^collect: seed: expected an integer >= 0"):
             collect(n_frames=3, seed=bad, progress=False)
     assert Flights("basic", 1, seed=np.int64(3)).n == 1
+
+
+# -- the checker: student code in a process of its own --------------------------------------
+STUDENT = {
+    "kill9": "import os\ndef reward(d, c, w=0.0):\n    os.kill(os.getpid(), 9)\n",
+    "cpu": ("import signal\ndef reward(d, c, w=0.0):\n"
+            "    signal.signal(signal.SIGALRM, signal.SIG_IGN)\n    while True:\n"
+            "        pass\n"),
+    "hang": ("import signal, time\ndef reward(d, c, w=0.0):\n"
+             "    signal.signal(signal.SIGALRM, signal.SIG_IGN)\n    time.sleep(600)\n"),
+    "exit0": "import os\ndef reward(d, c, w=0.0):\n    os._exit(0)\n",
+}
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="the checker runs apart where it forks")
+@pytest.mark.parametrize("kind, expected", [
+    ("kill9", "your code stopped the checker: killed by signal 9 (SIGKILL)"),
+    ("cpu", "your code stopped the checker: killed by signal 24 (SIGXCPU: more than 1 s of "
+            "CPU time)"),
+    ("hang", "your code stopped the checker: it was still running after 3 s"),
+    ("exit0", "your code stopped the checker: it ended the process (exit status 0)"),
+])
+def test_student_code_that_stops_its_process_is_one_line(kind, expected, tmp_path):
+    from minid3rqn.classroom.checks import EXERCISES
+    from minid3rqn.classroom.student import check_in_child
+    path = tmp_path / "reward.py"
+    path.write_text(STUDENT[kind])
+    report = check_in_child(EXERCISES["reward"].checker, path, "1 (reward)", seconds=3,
+                            cpu_seconds=1)
+    assert not report.passed and report.failures[0].startswith(expected), report.failures
+    assert len(report.lines) == 1
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="the checker runs apart where it forks")
+def test_what_student_code_forks_does_not_outlive_the_check(tmp_path):
+    from minid3rqn.classroom.checks import EXERCISES
+    from minid3rqn.classroom.student import check_in_child
+    pid_file = tmp_path / "pid"
+    path = tmp_path / "reward.py"
+    path.write_text(f"import os, time\nif os.fork() == 0:\n"
+                    f"    open({str(pid_file)!r}, 'w').write(str(os.getpid()))\n"
+                    f"    time.sleep(600)\n"
+                    f"import numpy as np\n"
+                    f"def reward(d, c, w=0.0):\n    return np.where(c, -1.0, d)\n")
+    started = __import__("time").monotonic()
+    report = check_in_child(EXERCISES["reward"].checker, path, "1 (reward)", seconds=30)
+    assert __import__("time").monotonic() - started < 25      # not held by the fork's pipe
+    assert "loads" in report.messages                          # the check itself ran
+    pid = int(pid_file.read_text())
+    for _ in range(50):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        __import__("time").sleep(0.1)
+    else:
+        pytest.fail(f"the student's forked process {pid} outlived the check")
+
+
+def test_a_check_apart_reports_as_one_in_process(tmp_path):
+    from minid3rqn.classroom.checks import EXERCISES
+    from minid3rqn.classroom.student import check_in_child
+    solution = ROOT / "docs" / "solutions" / "reward.py"
+    here, apart = EXERCISES["reward"].checker(solution), \
+        check_in_child(EXERCISES["reward"].checker, solution)
+    assert apart.passed and apart.lines == here.lines and apart.text() == here.text()
+    assert apart.summary == json.loads(json.dumps(here.summary, default=float))
+
+
+# -- the right reason ---------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def snapshot(tmp_path_factory):
+    """A train-agent run stopped at 64 of its 128 steps: checkpoint.npz and model.npz."""
+    from minid3rqn.rl.train import SMOKE, Run, TrainConfig
+    out = tmp_path_factory.mktemp("snap") / "run"
+    run = Run(TrainConfig(**SMOKE), out)
+    run.start()
+    run.steps = 64
+    run.save_checkpoint()
+    return out
+
+
+def _resave(src: Path, dst: Path, arrays=None, **meta) -> Path:
+    a, m = load_npz(src)
+    io.save_npz(dst, arrays(a) if arrays else a, {**m, **meta})
+    return dst
+
+
+def test_a_training_checkpoint_given_to_evaluate_is_named_as_one(snapshot, capsys):
+    assert main(["evaluate", str(snapshot / "checkpoint.npz"), "--flights", "2"]) == 2
+    assert "is a training checkpoint (its run's Q-net is model.npz beside it)" in \
+        _one_line(capsys.readouterr().err)
+
+
+def test_int_weights_are_refused(snapshot, tmp_path, capsys):
+    bad = _resave(snapshot / "model.npz", tmp_path / "int.npz",
+                  arrays=lambda a: {k: v.astype(np.int32) for k, v in a.items()})
+    assert main(["evaluate", str(bad), "--flights", "2"]) == 2
+    assert "is int32, not floating point" in _one_line(capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("damage, expected", [
+    ("nan", "holds NaN or inf: the file is damaged"),
+    ("steps", "records an impossible count (-5 steps"),
+])
+def test_a_damaged_checkpoint_is_not_resumed_for_the_wrong_reason(damage, expected, snapshot,
+                                                                 tmp_path, capsys):
+    from minid3rqn.rl.train import SMOKE
+    run = tmp_path / "run"
+    shutil.copytree(snapshot, run)
+    ckpt = run / "checkpoint.npz"
+    if damage == "nan":
+        def poison(a):
+            key = next(k for k in a if k.startswith("agent.") and a[k].dtype.kind == "f")
+            a[key] = np.full_like(a[key], np.nan)
+            return a
+        _resave(ckpt, ckpt, arrays=poison)
+    else:
+        _resave(ckpt, ckpt, steps=-5)
+    assert main(["train-agent", "--smoke", "--out", str(run), "--resume"]) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert expected in line and "diverged" not in line.split("damaged")[0], line
+    assert SMOKE                                    # the run it resumes is a smoke run
+
+
+def test_a_killed_runs_snapshot_is_said_by_fly_and_init_model(snapshot, tmp_path, capsys):
+    assert main([*FLY, "--model", str(snapshot / "model.npz"),
+                 "--gif", str(tmp_path / "f.gif")]) == 0
+    assert "is a snapshot at 64 of its run's 128 transitions" in capsys.readouterr().err
+    assert main(["train-agent", "--smoke", "--steps", "64", "--init-model",
+                 str(snapshot / "model.npz"), "--out", str(tmp_path / "ft")]) == 0
+    assert "--init-model: warning: Q-net" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_moved_depth_run_resumes(tmp_path, capsys, monkeypatch):
+    from minid3rqn.depth import train as depth_train
+    run = tmp_path / "d"
+    argv = ["--iterations", "2", "--set", "test_frames=30", "--set", "eval_every=0",
+            "--frames", "30"]
+
+    def killed(self, *a, **k):                     # stopped before it writes its model
+        raise KeyboardInterrupt
+    monkeypatch.setattr(depth_train.DepthEstimator, "save", killed)
+    assert main(["train-depth", "--dir", str(run), *argv]) == 130
+    monkeypatch.undo()
+    capsys.readouterr()
+    moved = tmp_path / "elsewhere"
+    run.rename(moved)
+    assert main(["train-depth", "--dir", str(moved), *argv, "--resume"]) == 0, \
+        capsys.readouterr().err
+    assert (moved / "model.npz").is_file()

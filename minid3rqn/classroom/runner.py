@@ -29,7 +29,7 @@ import numpy as np
 
 from ..io import write_json
 from .checks import Exercise, find
-from .student import line_in, working_copy
+from .student import Report, check_in_child, line_in, load, working_copy
 
 OUT = Path("runs/classroom")
 EVAL_SEED = 12345
@@ -371,7 +371,8 @@ def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "sm
     another name than the template's is named after it (``--file cap3.py``: "cap3")."""
     ex = find(name)
     path = None if baseline and ex.trains else Path(file) if file else working_copy(ex.filename)
-    report = None if path is None else ex.checker(path)
+    report = None if path is None else \
+        check_in_child(ex.checker, path, f"{ex.number} ({ex.name})")   # in a process apart
     if report is not None:
         print(report.text())
     if not ex.trains:
@@ -382,7 +383,7 @@ def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "sm
         again = f" --file {file}" if file else ""
         raise SystemExit(f"exercise {ex.name}: fix the problems above first "
                          f"(python -m minid3rqn check {ex.name}{again})")
-    module = None if path is None else report.module
+    module = None if path is None else load(path, Report(report.exercise, path))
     named = path.stem if path is not None and path.name != ex.filename else None
     try:
         if ex.trains == "depth":

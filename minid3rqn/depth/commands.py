@@ -27,7 +27,7 @@ from ..config import (UsageError, add_arguments, add_existing_option, as_dict, f
 from ..io import (MODELS, WriteError, check_new_file, check_output, claim_run_folder, hold,
                   holding, load_npz, read_metadata, reason, whole, write_json)
 from .data import CollectConfig, Sequence, collect_sequence, held_out, load_sequence
-from .train import TrainConfig, check_resume, other_frames, train_depth
+from .train import TrainConfig, check_resume, other_frames, recorded_data, train_depth
 
 RUNS = Path("runs/depth")
 
@@ -145,7 +145,8 @@ def _check_init_from(path) -> None:
         if "dispnet" in meta:
             DepthEstimator.load(path)
         else:
-            check_finite(load_npz(path)[0], path)
+            check_finite({k: v for k, v in load_npz(path)[0].items()
+                          if k.startswith(("disp.", "pose."))}, path)
     except ValueError as e:
         raise UsageError(f"--init-from: {str(e).removeprefix('DepthEstimator.load: ')}") \
             from None
@@ -183,8 +184,8 @@ def _claim_depth_run(args, cfg: TrainConfig, run_dir: Path) -> str:
               "--test-data": [args.test_data]}
     if not claim_run_folder(run_dir, args.existing, "--dir", DEPTH_OUTPUTS, inputs=inputs):
         return "new"
-    train = Path(args.data or run_dir / "train.npz").resolve()
-    settings = {**flat_settings(as_dict(cfg)), "data": str(train)}
+    train = recorded_data(args.data or run_dir / "train.npz", run_dir)
+    settings = {**flat_settings(as_dict(cfg)), "data": train}
     try:
         meta = read_metadata(run_dir / "checkpoint.npz")
         check_resume(meta, settings, run_dir / "checkpoint.npz")

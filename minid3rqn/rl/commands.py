@@ -20,7 +20,7 @@ from ..config import (UsageError, add_arguments, add_existing_option, as_dict, f
 from ..io import (WriteError, append_jsonl, check_log, check_output, claim_run_folder, hold,
                   read_metadata, whole)
 from .models import (actions_and_camera, depth_estimator_for, ensemble_members, recorded_result,
-                     recorded_text)
+                     recorded_text, unfinished_warning)
 
 RUNS = Path("runs")
 
@@ -75,9 +75,13 @@ def _check_init_model(t, widen: bool = False) -> None:
     if not Path(t.init_model).is_file():
         raise UsageError(f"--init-model: no file {t.init_model!r}")
     try:
-        theirs = QNetPolicy.load(t.init_model).qnet.config.to_dict()
+        policy = QNetPolicy.load(t.init_model)
     except ValueError as e:
         raise UsageError(f"--init-model: {e}") from None
+    warning = unfinished_warning(policy)
+    if warning:                             # said, as evaluate and fly say it
+        print(f"--init-model: {warning}", file=sys.stderr)
+    theirs = policy.qnet.config.to_dict()
     cam = Camera(hfov_deg=t.hfov_deg)
     mine = t.qnet_config(len(ACTIONS if t.actions is None else t.actions),
                          (cam.height, cam.width)).to_dict()
@@ -261,6 +265,10 @@ def run_fly(args) -> int:
         actions_and_camera(*policies)          # nets flown together fly one setting
     except ValueError as e:
         raise UsageError(f"--model: {e}") from None
+    for policy in policies:
+        warning = unfinished_warning(policy)
+        if warning:
+            print(warning, file=sys.stderr)
     depth = cfg.depth
     depth_model = shipped_depth_model(cfg.scenario) if depth == "pred" else None
     est = _estimator(depth, depth_model, cfg.scenario, cfg.flip_tta, option="--scenario")
@@ -274,7 +282,7 @@ def run_fly(args) -> int:
     with hold(cfg.gif, "--gif"):
         try:
             out = fly(policies, est, cfg.scenario, seed, cfg.flights, cfg.gif,
-                      mirror=cfg.mirror)
+                      mirror=cfg.mirror, progress=_progress())
         except WriteError as e:          # what was measured is said before the error
             _flown(e.measured, depth, recorded, model)
             raise

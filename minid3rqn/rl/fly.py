@@ -56,11 +56,13 @@ def action_names(actions) -> list[str]:
 
 
 def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flights: int = 200,
-        gif="runs/fly.gif", max_steps: int = 50, mirror: bool = False) -> dict:
+        gif="runs/fly.gif", max_steps: int = 50, mirror: bool = False,
+        progress: bool = False) -> dict:
     """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate.
     ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q), or
     the loaded policies; they fly with the action table and camera they were trained
-    with. ``mirror``: each net also flies the mirrored view (``rl.mirror``)."""
+    with. ``mirror``: each net also flies the mirrored view (``rl.mirror``).
+    ``progress``: a bar of the steps flown, from the first."""
     t0 = time.time()
     seed = check_seed(seed, "fly: seed")
     members = list(model) if isinstance(model, (list, tuple)) else \
@@ -100,7 +102,21 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
             frames_out.append(viz.label(viz.hstack([top] + panels, 192), "COLLISION",
                                         (200, 4), (255, 40, 40)))
 
-    survived = run_flights(policy, env, max_steps, record=record)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=max_steps, unit="step", desc=f"fly {n_flights} flights",
+                   dynamic_ncols=True, leave=False)
+
+    def recorded(*step):
+        record(*step)
+        if bar is not None:
+            bar.update(1)
+    try:
+        survived = run_flights(policy, env, max_steps, record=recorded)
+    finally:
+        if bar is not None:
+            bar.close()
     success = survived >= max_steps
     k = int(success.sum())
     lo, hi = wilson_interval(k, n_flights)

@@ -32,7 +32,8 @@ import numpy as np
 
 from ..config import (FLIGHT_BYTES, FLIGHT_STEPS, ConfigError, as_dict, at_least, between,
                       changed_settings, fits_memory, flat_settings, positive, setting, validate)
-from ..io import RunStopped, StopRequest, load_npz, reading_checkpoint, save_npz, write_file
+from ..io import (RunStopped, StopRequest, check_checkpoint_weights, load_npz,
+                  reading_checkpoint, save_npz, write_file)
 from ..nets.qnet import QNetConfig
 from ..world import DroneEnv
 from .agent import Agent, AgentConfig, FrameStacker
@@ -286,6 +287,7 @@ class Run:
             return {k[len(prefix) + 1:]: v for k, v in arrays.items()
                     if k.startswith(prefix + ".")}
         with reading_checkpoint(self.out / "checkpoint.npz"):
+            check_checkpoint_weights(arrays)
             self.agent.load_state_dict(part("agent"))
             self.replay.load_state_dict(part("replay"))
             self.env.load_state_dict(part("env"), meta["env_meta"])
@@ -312,6 +314,11 @@ def check_resume(meta: dict, settings: dict, where) -> None:
             and isinstance(meta.get("settings") or meta.get("config"), dict)):
         raise ValueError(f"resume: the checkpoint in {str(where)!r} is not one of train-agent "
                          f"or distil")
+    if meta["steps"] < 0 or not isinstance(meta.get("episodes", 0), int) \
+            or meta.get("episodes", 0) < 0:
+        raise ValueError(f"resume: the checkpoint in {str(where)!r} records an impossible "
+                         f"count ({meta['steps']} steps, {meta.get('episodes')} episodes); "
+                         f"start afresh with --overwrite")
     saved = meta.get("settings") or flat_settings(meta["config"])
     made, now = (("distil" if "teachers" in s else "train-agent") for s in (saved, settings))
     if made != now:
