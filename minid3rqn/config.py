@@ -75,6 +75,13 @@ def between(lo, hi):
     return lambda v: None if lo <= v <= hi else f"a number in [{lo}, {hi}]"
 
 
+def up_to(lo, hi, why: str):
+    """A check: a count from ``lo`` to ``hi``, ``why`` saying where the upper limit comes
+    from."""
+    return lambda v: None if lo <= v <= hi else f"a number >= {lo}" if v < lo else \
+        f"at most {hi:,} ({why})"
+
+
 def positive(v):
     return None if v > 0 else "a number > 0"
 

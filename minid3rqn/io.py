@@ -414,9 +414,16 @@ def _holder(lock: Path) -> str:
     """Who holds ``lock``, in words, from what its holder wrote in it."""
     try:
         who = json.loads(lock.read_text())
-        return (f"pid {who['pid']} ({who['command']}), since {who['since']}")
+        text = f"pid {who['pid']} ({who['command']}), since {who['since']}"
     except (OSError, ValueError, KeyError, TypeError):
         return "another process"
+    try:
+        os.kill(int(who["pid"]), 0)
+    except ProcessLookupError:       # its lock lives on in processes it started
+        text += "; it has ended, but processes it started still run"
+    except (OSError, ValueError, TypeError):
+        pass
+    return text
 
 
 def _flock(fd: int) -> bool:

@@ -345,15 +345,16 @@ def test_a_qnet_file_with_plus_in_its_name_is_one_file(tmp_path, capsys):
 # -- sizes ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("argv, expected", [
     (["evaluate", "straight", "--flights", "99999999999999"],
-     "--flights: expected a number in [1, 1000000]"),
+     "--flights: expected at most 1,000,000 (a million flights give a 95% interval"),
     (["evaluate", "straight", "--chunk", "100000000000"], "--chunk: expected at most"),
     (["fly", "--flights", "100000000000"], "--flights: expected at most"),
-    (["train-agent", "--seq-len", "1000"], "--seq-len: expected a number in [1, 50]"),
-    (["train-agent", "--set", "stack=51"], "--set stack: expected a number in [1, 50]"),
+    (["train-agent", "--seq-len", "1000"], "--seq-len: expected at most 50 (a flight's 50 "
+                                           "steps); got 1000"),
+    (["train-agent", "--set", "stack=51"], "--set stack: expected at most 50"),
     (["train-agent", "--replay-capacity", "10000000000"], "--replay-capacity: expected at most"),
     (["collect", "--frames", "100000000000"], "--frames: expected at most"),
     (["train-depth", "--set", "test_frames=100000000000"], "--set test_frames: expected at most"),
-    (["evaluate", "straight", "--steps", "100000000"], "--steps: expected a number in [1, "),
+    (["evaluate", "straight", "--steps", "100000000"], "--steps: expected at most 10,000"),
 ])
 def test_a_size_too_large_is_one_line(argv, expected, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)

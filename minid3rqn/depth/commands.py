@@ -207,11 +207,10 @@ def run_train_depth(args) -> int:
         _check_init_from(args.init_from)
     run_dir = Path(args.dir or RUNS / data.scenario)
     check_output(run_dir, "--dir", folder=True)
-    for option, given in (("--data", args.data), ("--test-data", args.test_data)):
-        if given:
-            check_output(given, option, suffix=".npz")
     collected = [(p, o) for p, o in ((args.data, "--data"), (args.test_data, "--test-data"))
                  if p and not Path(p).is_file()]          # frames this run collects there
+    for path, option in collected:
+        check_output(path, option, suffix=".npz")
     with holding((run_dir, "--dir"), *collected):
         stale = _check_frames(args, cfg, data, run_dir)
         how = _claim_depth_run(args, cfg, run_dir)

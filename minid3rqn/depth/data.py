@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import (as_dict, at_least, between, check_seed, command_line, fits_memory,
-                      setting, shell_command, validate)
+                      setting, shell_command, up_to, validate)
 from ..io import load_npz, save_npz
 from ..world.camera import Camera
 from ..world.distance import nearest_distance, sample_start_pose
@@ -63,7 +63,8 @@ class CollectConfig:
                                      "obstacles, swerving late (0: the careful pilot)",
                                 source="ours", check=between(0.0, 1.0))
     frames_per_flight: int = setting(50, "the longest flight, in frames", source="ours",
-                                     check=between(3, 10 ** 4))
+                                     check=up_to(3, 10 ** 4, "the paper's flights last "
+                                                             "50 steps"))
 
     def __post_init__(self):
         validate(self)

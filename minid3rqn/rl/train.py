@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from ..config import (FLIGHT_BYTES, FLIGHT_STEPS, ConfigError, as_dict, at_least, between,
-                      changed_settings, fits_memory, flat_settings, positive, setting, validate)
+                      changed_settings, fits_memory, flat_settings, positive, setting, up_to,
+                      validate)
 from ..io import (RunStopped, StopRequest, check_checkpoint_weights, load_npz,
                   reading_checkpoint, save_npz, write_file)
 from ..nets.qnet import QNetConfig
@@ -68,7 +69,8 @@ class TrainConfig:
     seq_len: int | None = setting(None, "steps per replay window (5; none: 5 for the "
                                         "recurrent variants, 1 for the others; at most "
                                         "a flight's 50 steps)",
-                                  source="paper", check=between(1, FLIGHT_STEPS))
+                                  source="paper",
+                                  check=up_to(1, FLIGHT_STEPS, "a flight's 50 steps"))
     agent: AgentConfig = setting(default_factory=AgentConfig)
     # -- the budget (ours: scaled to a laptop)
     steps: int = setting(60_000, "environment transitions (all flights)", source="budget",
@@ -106,7 +108,8 @@ class TrainConfig:
     init_model: str = setting("", "start from this Q-net .npz (fine-tuning)", source="run")
     stack: int = setting(1, "frames per observation (5: a window as channels; at most a "
                             "flight's 50 steps)",
-                         source="run", check=between(1, FLIGHT_STEPS), cli="more")
+                         source="run", check=up_to(1, FLIGHT_STEPS, "a flight's 50 steps"),
+                         cli="more")
     log_every: int = setting(2_000, "transitions between learning-curve rows",
                              source="run", check=at_least(1), cli="more")
     checkpoint_every: int = setting(10_000, "transitions between checkpoints",
