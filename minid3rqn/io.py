@@ -20,6 +20,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import shlex
 import signal
 import sys
 import tempfile
@@ -469,7 +470,7 @@ def hold(target, option: str):
             break
         os.close(fd)
     since = datetime.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M:%S %Z")
-    words = "python -m minid3rqn " + " ".join(sys.argv[1:])
+    words = "python -m minid3rqn " + shlex.join(sys.argv[1:])
     record = {"pid": os.getpid(), "command": words, "since": since,
               "target": str(Path(target).resolve())}
     os.ftruncate(fd, 0)
