@@ -126,7 +126,7 @@ def capped_workers(cfg, name: str = "workers") -> None:
 
 
 # Flights last at most this many steps (the paper's success: 50 steps without a collision,
-# ``rl.flights.FlightsConfig.max_steps``): a replay window or a frame stack longer than a
+# ``DroneEnv``'s ``max_steps``): a replay window or a frame stack longer than a
 # flight holds only padding.
 FLIGHT_STEPS = 50
 # Flights stepped together (a chunk of evaluate, fly's flights, a training's flights): the

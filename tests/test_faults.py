@@ -378,17 +378,15 @@ def test_more_workers_than_cores_are_capped_with_a_note(tmp_path, capsys):
 def test_a_seed_that_is_no_seed_is_named_where_it_enters():
     from minid3rqn.depth.data import collect
     from minid3rqn.rl.evaluate import evaluate_policy
-    from minid3rqn.rl.flights import Flights
     from minid3rqn.rl.policies import StraightPolicy
     for bad in (-1, 1.5, "7", None):
         with pytest.raises(ValueError, match=r"^evaluate_policy: seed: expected an integer "
                                              r">= 0; got "):
             evaluate_policy(StraightPolicy(), n_flights=2, seed=bad, progress=False)
-        with pytest.raises(ValueError, match=r"^Flights: seed: expected an integer >= 0"):
-            Flights("basic", 2, seed=bad)
         with pytest.raises(ValueError, match=r"^collect: seed: expected an integer >= 0"):
             collect(n_frames=3, seed=bad, progress=False)
-    assert Flights("basic", 1, seed=np.int64(3)).n == 1
+    assert evaluate_policy(StraightPolicy(), n_flights=1, seed=np.int64(3),
+                           progress=False).flights == 1
 
 
 # -- the checker: student code in a process of its own --------------------------------------
