@@ -24,12 +24,12 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from minid3rqn import viz
 from minid3rqn.depth.data import Sequence, collect
 from minid3rqn.depth.evaluate import DepthEstimator, comparison_picture, evaluate
 from minid3rqn.depth.train import TrainConfig, Trainer
+from minid3rqn.io import write_image
 from minid3rqn.world import (Camera, integrate_arc, inverse_warp_numpy, make_scene,
                              relative_transform, render_batch, sample_start_pose)
 
@@ -71,10 +71,7 @@ def warp_picture(path, seed: int = 0, height: int = 128) -> Path:
             height))
         print(f"   {name:<24} mean |error| {np.nanmean(e):.3f}")
     gap = np.full((6, lines[0].shape[1], 3), 255, np.uint8)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.concatenate([x for line in lines for x in (line, gap)][:-1])).save(path)
-    return path
+    return write_image(path, np.concatenate([x for line in lines for x in (line, gap)][:-1]))
 
 
 def main() -> None:

@@ -43,6 +43,7 @@ import numpy as np
 
 from minid3rqn.depth.data import fly
 from minid3rqn.depth.evaluate import DepthEstimator
+from minid3rqn.io import write_image
 from minid3rqn.viz import depth_to_rgb
 from minid3rqn.world import Camera, make_scene, render_batch
 from minid3rqn.world import textures as tx
@@ -136,7 +137,6 @@ def photometric_curve(worlds, cam):
 
 def picture(frames, path, n=6):
     """RGB | predicted | GT for the n nearest one-surface frames, fixed metric colours."""
-    from PIL import Image
     rgb = np.concatenate([f[0] for f in frames])
     pred = np.concatenate([f[1] for f in frames])
     gt = np.concatenate([f[2] for f in frames])
@@ -146,9 +146,7 @@ def picture(frames, path, n=6):
                             depth_to_rgb(gt[i], 0.5, 10.0, log=True)], axis=1) for i in order]
     gap = np.full((3, rows[0].shape[1], 3), 255, np.uint8)
     img = np.concatenate([x for r in rows for x in (r, gap)][:-1])
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(img.repeat(3, 0).repeat(3, 1)).save(path)
-    return path
+    return write_image(path, img.repeat(3, 0).repeat(3, 1))
 
 
 def main():

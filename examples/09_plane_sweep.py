@@ -39,7 +39,7 @@ import numpy as np
 
 from minid3rqn.depth.data import Sequence, collect
 from minid3rqn.depth.evaluate import DepthEstimator
-from minid3rqn.io import MODELS
+from minid3rqn.io import MODELS, write_image
 from minid3rqn.viz import depth_to_rgb
 from minid3rqn.world.geometry import inverse_warp_numpy, relative_transform
 
@@ -108,9 +108,8 @@ def main() -> None:
         [seq.rgb[idx[r]], depth_to_rgb(sweep[r]), depth_to_rgb(dispnet[r]),
          depth_to_rgb(truth[r])], axis=1) for r in rows], axis=0)
     out = Path(args.out) / "plane_sweep.png"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(picture).resize((picture.shape[1] * 3, picture.shape[0] * 3),
-                                    Image.NEAREST).save(out)
+    write_image(out, Image.fromarray(picture).resize((picture.shape[1] * 3,
+                                                      picture.shape[0] * 3), Image.NEAREST))
     print(f"wrote {out}: RGB | the sweep's answer | DispNet | GT, one frame per row")
 
 

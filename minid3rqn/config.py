@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shlex
+import sys
 import types
 import typing
 from dataclasses import MISSING, field, fields, is_dataclass
@@ -73,8 +75,80 @@ def between(lo, hi):
     return lambda v: None if lo <= v <= hi else f"a number in [{lo}, {hi}]"
 
 
+def up_to(lo, hi, why: str):
+    """A check: a count from ``lo`` to ``hi``, ``why`` saying where the upper limit comes
+    from."""
+    return lambda v: None if lo <= v <= hi else f"a number >= {lo}" if v < lo else \
+        f"at most {hi:,} ({why})"
+
+
 def positive(v):
     return None if v > 0 else "a number > 0"
+
+
+def memory_bytes() -> int:
+    """This machine's physical memory in bytes (8 GB where it cannot be asked)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):
+        return 8 << 30
+
+
+def fits_memory(lo: int, each: float, what: str):
+    """A check: a count >= ``lo`` whose ``what`` (``each`` bytes apiece) fit in half this
+    machine's memory."""
+    def check(v):
+        most = max(lo, int(memory_bytes() / 2 // each))
+        if lo <= v <= most:
+            return None
+        return (f"a number >= {lo}" if v < lo else
+                f"at most {most:,} ({what} take about {each / 1e3:,.0f} KB each; half this "
+                f"machine's {memory_bytes() / 2 ** 30:.1f} GB memory)")
+    return check
+
+
+def cores() -> int:
+    """The CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def capped_workers(cfg, name: str = "workers") -> None:
+    """``cfg.<name>`` (worker processes) above the cores this process may use is set to
+    their number, with a note on stderr: more processes than cores only share them."""
+    n = cores()
+    if getattr(cfg, name) > n:
+        print(f"note: {option_name(type(cfg), name)} {getattr(cfg, name)} is more than the "
+              f"{n} cores of this machine; using {n}", file=sys.stderr)
+        object.__setattr__(cfg, name, n)
+
+
+# Flights last at most this many steps (the paper's success: 50 steps without a collision,
+# ``DroneEnv``'s ``max_steps``): a replay window or a frame stack longer than a
+# flight holds only padding.
+FLIGHT_STEPS = 50
+# Flights stepped together (a chunk of evaluate, fly's flights, a training's flights): the
+# peak memory of evaluate grows by about 0.2 MB a flight with the DispNet's depth (--chunk
+# 50 -> 250: 114 -> 153 MB) and 0.15 MB on GT depth (--chunk 100 -> 1000: 70 -> 206 MB),
+# measured with /usr/bin/time; 0.25 MB leaves room.
+FLIGHT_BYTES = 250e3
+
+
+def check_seed(seed, name: str = "seed") -> int:
+    """``seed`` as the integer >= 0 that seeds NumPy; a ValueError naming ``name``, in
+    one line, for anything else (a negative, fractional or text seed): where a seed
+    enters the library, before NumPy sees it."""
+    if isinstance(seed, (bool, float, str)) or not isinstance(seed, (int, np_integer())) \
+            or seed < 0:
+        raise ValueError(f"{name}: expected an integer >= 0; got {seed!r}")
+    return int(seed)
+
+
+def np_integer():
+    import numpy as np
+    return np.integer
 
 
 # -- types ------------------------------------------------------------------------------

@@ -1,16 +1,26 @@
-"""Files on disk: ``.npz`` written atomically, read without pickle; JSON lines
-appended whole; run folders and output paths checked before a command works; a
+"""Files on disk: every file written atomically through one function (``write_file``),
+``.npz`` read without pickle; JSON lines appended whole; one writer per run folder or
+output file (``hold``); run folders and output paths checked before a command works; a
 training loop stopped by Ctrl-C at the end of a step.
 
-Atomic: the arrays go to a temporary file in the same folder, which is then renamed
-over the target; a crash mid-write leaves the old file intact, never half a file. A
-temporary file left by a writer that was killed is removed by the next write to the
-same path. Files get the usual permissions (0666 less the umask), as ``open`` gives.
+Atomic: the bytes go to a temporary file in the same folder, which is flushed to disk
+and then renamed over the target; a crash or a full disk mid-write leaves the old file
+whole, never half a file. A failed write raises ``WriteError``, naming the file and the
+reason. A temporary file left by a writer that was killed is removed by the next write
+to the same path. Files get the usual permissions (0666 less the umask), as ``open``
+gives.
+
+Paths: an output that is a symbolic link is written through to the file it points to
+(the link stays a link; a dangling link makes its target); a path in a loop of links,
+or a name that is not UTF-8 text (it could not be recorded in a model file or printed),
+is refused in one line.
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
+import shlex
 import signal
 import sys
 import tempfile
@@ -20,6 +30,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+
+from .config import UsageError
 
 
 def _umask() -> int:
@@ -42,12 +54,89 @@ def _remove_stale_temporaries(path: Path) -> None:
             pass
 
 
+class WriteError(OSError):
+    """A file could not be written (a full disk, a read-only folder...): the message names
+    the file and the reason, and says that the earlier file, if any, is whole."""
+
+    def __str__(self) -> str:
+        return self.strerror
+
+
+def _fill(f, content) -> None:
+    """Write ``content`` (bytes, text, or a function of a binary file) to the file ``f``."""
+    if callable(content):
+        content(f)
+    else:
+        f.write(content.encode() if isinstance(content, str) else content)
+
+
+def write_file(path, content) -> Path:
+    """The one way minid3rqn writes a file: ``content`` (bytes, text written as UTF-8, or
+    a function that writes to a binary file object) goes to a temporary file beside
+    ``path``, flushed to disk, then renamed over ``path``. A symbolic link is written
+    through to its target. If anything fails the temporary file is removed and the file
+    at ``path`` is as it was; an OSError becomes a ``WriteError`` naming ``path``."""
+    shown = Path(path)
+    path = _target(shown)
+    _remove_stale_temporaries(path)
+    existed = path.is_file()
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{path.name}.{os.getpid()}.",
+                                   suffix=".tmp")
+        os.chmod(tmp, 0o666 & ~_umask())
+        with os.fdopen(fd, "wb") as f:
+            _fill(f, content)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+        tmp = None
+    except OSError as e:
+        kept = "the earlier file is kept whole" if existed else "nothing was written"
+        raise WriteError(e.errno, f"could not write {str(shown)!r}: "
+                                  f"{e.strerror or e}; {kept}") from None
+    finally:
+        if tmp is not None and os.path.exists(tmp):
+            os.remove(tmp)
+    return shown
+
+
+def write_json(path, value, indent: int | None = 2) -> Path:
+    """``value`` as a JSON file (``write_file``), ending in a newline."""
+    return write_file(path, json.dumps(value, indent=indent) + "\n")
+
+
+def write_image(path, image, **options) -> Path:
+    """A Pillow image (or uint8 array) as a file whose format its suffix names
+    (``write_file``); ``options`` go to ``Image.save`` (a GIF's frames, ...)."""
+    from PIL import Image
+    if not isinstance(image, Image.Image):
+        image = Image.fromarray(np.asarray(image))
+    kind = {".png": "PNG", ".gif": "GIF", ".jpg": "JPEG", ".jpeg": "JPEG"}.get(
+        Path(path).suffix.lower(), "PNG")
+    return write_file(path, lambda f: image.save(f, format=kind, **options))
+
+
+def _target(path: Path) -> Path:
+    """Where writing ``path`` lands: the file a symbolic link points to (followed to the
+    end; a dangling link's target), else ``path``. OSError for a loop of links."""
+    if not path.is_symlink():
+        return path
+    try:
+        os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise WriteError(e.errno, f"could not write {str(path)!r}: it is in a loop of "
+                                      f"symbolic links") from None
+    return Path(os.path.realpath(path))
+
+
 def save_npz(path, arrays: dict[str, np.ndarray], metadata: dict | None = None) -> Path:
     """Write ``arrays`` (and optional JSON-able ``metadata``) to ``path`` atomically."""
     path = Path(path)
     if path.suffix != ".npz":
         raise ValueError(f"save_npz: path must end in .npz; got {str(path)!r}")
-    path.parent.mkdir(parents=True, exist_ok=True)
     payload = {k: np.asarray(v) for k, v in arrays.items()}
     if metadata is not None:
         if "__metadata__" in payload:
@@ -57,21 +146,7 @@ def save_npz(path, arrays: dict[str, np.ndarray], metadata: dict | None = None) 
         if value.dtype == object:
             raise TypeError(f"save_npz: array {key!r} has dtype object, which would need "
                             f"pickle; store numbers or strings only")
-    _remove_stale_temporaries(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{path.name}.{os.getpid()}.",
-                               suffix=".tmp")
-    try:
-        os.chmod(tmp, 0o666 & ~_umask())
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-    return path
+    return write_file(path, lambda f: np.savez(f, **payload))
 
 
 def _npz_problem(error: Exception) -> str:
@@ -137,15 +212,19 @@ def append_jsonl(path, record: dict) -> None:
     problem = _last_line_problem(path) if path.is_file() else None
     if problem:
         raise ValueError(problem)
-    with open(path, "ab") as f:
-        size = f.seek(0, os.SEEK_END)
-        try:
-            f.write(line)
-            f.flush()
-            os.fsync(f.fileno())
-        except BaseException:
-            f.truncate(size)
-            raise
+    try:
+        with open(path, "ab") as f:
+            size = f.seek(0, os.SEEK_END)
+            try:
+                f.write(line)
+                f.flush()
+                os.fsync(f.fileno())
+            except BaseException:
+                f.truncate(size)
+                raise
+    except OSError as e:
+        raise WriteError(e.errno, f"could not append to {str(path)!r}: {e.strerror or e}; "
+                                  f"the file is as it was") from None
 
 
 def blas_core() -> str:
@@ -198,6 +277,9 @@ def check_output(path, option: str, folder: bool = False, suffix: str | None = N
     writable. Creates nothing; a UsageError naming ``option`` otherwise."""
     from .config import UsageError
     path = Path(path)
+    problem = path_problem(path)
+    if problem:
+        raise UsageError(f"{option}: {problem}")
     where = path.resolve()
     if where == MODELS or MODELS in where.parents:
         raise UsageError(f"{option}: {str(path)!r} is inside minid3rqn/models, which holds "
@@ -223,6 +305,24 @@ def check_output(path, option: str, folder: bool = False, suffix: str | None = N
         raise UsageError(f"{option}: {str(path)!r} cannot be made: {str(parent)!r} is not "
                          f"writable")
     return path
+
+
+def path_problem(path) -> str | None:
+    """Why ``path`` cannot name a file minid3rqn reads or writes, or None: a name that is
+    not UTF-8 text (it could be neither printed nor recorded in a model file), or a path
+    through a loop of symbolic links."""
+    text = str(path)
+    try:
+        text.encode()
+    except UnicodeEncodeError:
+        return (f"{ascii(text)} is not a UTF-8 name (it could be neither printed nor "
+                f"recorded); rename it")
+    try:
+        os.stat(text)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return f"{text!r} is in a loop of symbolic links"
+    return None
 
 
 def check_new_file(path, option: str, suffix: str, existing: str | None) -> Path:
@@ -284,6 +384,146 @@ def claim_run_folder(folder, existing: str | None, option: str,
     return True
 
 
+# -- one writer per run folder or output file -----------------------------------------
+class Busy(UsageError):
+    """Another command holds the lock of a run folder or output file (``hold``)."""
+
+
+def _lock_folder() -> Path:
+    """Where the locks live: one folder of the machine, so that a lock changes nothing in
+    the folders a command is asked to write (sticky and writable by all, as /tmp is)."""
+    folder = Path(tempfile.gettempdir()) / "minid3rqn-locks"
+    if not folder.is_dir():
+        folder.mkdir(exist_ok=True)
+        try:
+            os.chmod(folder, 0o1777)
+        except OSError:
+            pass
+    return folder
+
+
+def lock_path(target) -> Path:
+    """The lock file of ``target`` (a run folder or an output file): named by a digest of
+    its full path, symbolic links resolved, so two spellings of one target share it."""
+    import hashlib
+    where = str(Path(target).resolve())
+    return _lock_folder() / (hashlib.sha1(where.encode("utf-8", "surrogateescape"))
+                             .hexdigest()[:20] + ".lock")
+
+
+def _holder(lock: Path) -> str:
+    """Who holds ``lock``, in words, from what its holder wrote in it."""
+    try:
+        who = json.loads(lock.read_text())
+        text = f"pid {who['pid']} ({who['command']}), since {who['since']}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "another process"
+    try:
+        os.kill(int(who["pid"]), 0)
+    except ProcessLookupError:       # its lock lives on in processes it started
+        text += "; it has ended, but processes it started still run"
+    except (OSError, ValueError, TypeError):
+        pass
+    return text
+
+
+def _flock(fd: int) -> bool:
+    """Take the exclusive lock of the open file ``fd`` without waiting; False if held.
+    The operating system releases it when its holder ends, however it ends: a lock is
+    never stale. (``fcntl.flock`` on POSIX, ``msvcrt.locking`` on Windows.)"""
+    try:
+        import fcntl
+    except ImportError:                                      # Windows
+        import msvcrt
+        try:
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+            return True
+        except OSError:
+            return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except BlockingIOError:
+        return False
+
+
+@contextmanager
+def hold(target, option: str):
+    """``with hold(path, "--out"):`` around a command's work on a run folder or an output
+    file: one writer at a time. A second command on the same target (while this one
+    runs) gets a ``Busy`` naming ``option``, the target and the holder (its pid, its
+    command and since when); a holder that died holds nothing (the lock is the operating
+    system's, released with its process)."""
+    import datetime
+    lock = lock_path(target)
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        if not _flock(fd):
+            os.close(fd)
+            raise Busy(f"{option}: {str(target)!r} is in use by another command: "
+                       f"{_holder(lock)}; wait for it to end, or choose another {option}")
+        try:                                  # the file may have been removed meanwhile
+            same = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    since = datetime.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M:%S %Z")
+    words = "python -m minid3rqn " + shlex.join(sys.argv[1:])
+    record = {"pid": os.getpid(), "command": words, "since": since,
+              "target": str(Path(target).resolve())}
+    os.ftruncate(fd, 0)
+    os.write(fd, json.dumps(record, ensure_ascii=True).encode())
+    try:
+        yield Path(target)
+    finally:
+        try:
+            os.unlink(lock)
+        except OSError:
+            pass
+        os.close(fd)
+
+
+@contextmanager
+def holding(*targets):
+    """``hold`` of every (path, option) in ``targets`` (None paths skipped; two spellings
+    of one path held once), for a command that writes several outputs."""
+    from contextlib import ExitStack
+    with ExitStack() as stack:
+        seen = set()
+        for path, option in targets:
+            if path is None or lock_path(path) in seen:
+                continue
+            seen.add(lock_path(path))
+            stack.enter_context(hold(path, option))
+        yield
+
+
+def whole(path) -> bool:
+    """Whether the file ``path`` reads whole as what its suffix says: an .npz every array
+    of which loads, a JSON document, a PNG or GIF image, a text file ending in a newline.
+    What a finished run's files are checked with before ``--resume`` calls it done."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    try:
+        if path.suffix == ".npz":
+            load_npz(path)
+        elif path.suffix == ".json":
+            json.loads(path.read_text())
+        elif path.suffix in (".png", ".gif"):
+            from PIL import Image
+            with Image.open(path) as im:
+                im.verify()
+        else:
+            data = path.read_bytes()
+            return bool(data) and data.endswith(b"\n")
+    except Exception:        # noqa: BLE001 - whatever the reader says: not whole
+        return False
+    return True
+
+
 def reason(error: Exception) -> str:
     """Why a file could not be read, in words (a KeyError names what is missing)."""
     text = str(error.args[0]) if error.args else type(error).__name__
@@ -292,6 +532,15 @@ def reason(error: Exception) -> str:
 
 class DamagedCheckpoint(ValueError):
     """A checkpoint that ``--resume`` cannot continue; the CLI prints it as one line."""
+
+
+def check_checkpoint_weights(arrays: dict) -> None:
+    """ValueError if a checkpoint's float arrays hold NaN or inf: such a file is damaged
+    (a training that diverges stops before it saves), whatever its weights say."""
+    for name, value in arrays.items():
+        if value.dtype.kind == "f" and not np.isfinite(value).all():
+            raise ValueError(f"its array {name!r} holds NaN or inf: the file is damaged (a "
+                             f"training that diverges stops before it saves)")
 
 
 @contextmanager

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from .io import write_image
+
 # Control points of a perceptual colour map (sampled from the published magma).
 _MAPS = {
     "magma": [(0, 0, 4), (28, 16, 68), (79, 18, 123), (129, 37, 129), (181, 54, 122),
@@ -143,15 +145,13 @@ def bar_chart(values, names, size=(160, 120), highlight: int | None = None,
 
 
 def write_gif(frames, path, fps: float = 5.0) -> Path:
-    """Write frames (RGB uint8 arrays or PIL images, one size) as a looping GIF."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write frames (RGB uint8 arrays or PIL images, one size) as a looping GIF
+    (atomically: ``io.write_file``)."""
     ims = [f if isinstance(f, Image.Image) else Image.fromarray(to_rgb(f)) for f in frames]
     if not ims:
         raise ValueError("write_gif: frames is empty")
-    ims[0].save(path, save_all=True, append_images=ims[1:], duration=int(1000 / fps), loop=0,
-                optimize=False)
-    return path
+    return write_image(path, ims[0], save_all=True, append_images=ims[1:],
+                       duration=int(1000 / fps), loop=0, optimize=False)
 
 
 _COLOURS = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14),
@@ -210,8 +210,7 @@ def line_plot(series: dict, path=None, size=(520, 300), title: str = "", xlabel:
         d.text((2, 5), ylabel, fill=(0, 0, 0), font=font)
     arr = np.asarray(im)
     if path is not None:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        im.save(path)
+        write_image(path, im)
     return arr
 
 
@@ -222,8 +221,4 @@ def learning_curve_png(rows, path, title: str = "") -> Path:
                     title=title, xlabel="environment steps")
     suc = line_plot({"success rate (training flights)": (steps, [r["success"] for r in rows])},
                     xlabel="environment steps", ylim=(0.0, 1.0))
-    out = np.concatenate([ret, suc], axis=0)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(out).save(path)
-    return path
+    return write_image(path, np.concatenate([ret, suc], axis=0))

@@ -37,7 +37,7 @@ def add_arguments_check(p: argparse.ArgumentParser) -> None:
 
 
 def run_check(args) -> int:
-    from .student import working_copy
+    from .student import check_in_child, working_copy
     chosen = list(EXERCISES.values()) if args.exercise.lower() == "all" else \
         [_find(args.exercise)]
     given = None if args.file is None else Path(args.file)
@@ -51,7 +51,7 @@ def run_check(args) -> int:
     for ex in chosen:
         path = working_copy(ex.filename) if given is None else \
             given / ex.filename if given.is_dir() else given
-        report = ex.checker(path)
+        report = check_in_child(ex.checker, path, f"{ex.number} ({ex.name})")
         nxt = f"python -m minid3rqn exercise {ex.name}" if ex.trains else None
         print(report.text(next_step=nxt) + ("\n" if len(chosen) > 1 else ""))
         failed += not report.passed

@@ -27,8 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io import write_json
 from .checks import Exercise, find
-from .student import line_in, working_copy
+from .student import Report, check_in_child, line_in, load, working_copy
 
 OUT = Path("runs/classroom")
 EVAL_SEED = 12345
@@ -214,8 +215,7 @@ def run_agent_exercise(ex: Exercise, module, summary: dict | None = None, budget
                                depth_estimator=est, **test)
         result.update({"pred_success": pred.rate, "pred_ci": [pred.ci_low, pred.ci_high],
                        "pred_mean_steps": pred.mean_steps, "depth_model": est_path})
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "result.json").write_text(json.dumps(result, indent=2))
+    write_json(run_dir / "result.json", result)
     print("\n" + _said(result))
     print(summary_table(ex.name, out))
     return result
@@ -304,7 +304,7 @@ def run_depth_exercise(ex: Exercise, module, budget: str = "small", seed: int = 
     result = {"exercise": ex.name, "tag": tag, "budget": budget, "seed": seed,
               **{k: float(v) for k, v in metrics.items() if np.isscalar(v)},
               "train_seconds": seconds}
-    (run_dir / "result.json").write_text(json.dumps(result, indent=2))
+    write_json(run_dir / "result.json", result)
     print(f"\n{tag}: abs rel {result['abs_rel']:.3f}, delta<1.25 {result['a1']:.3f}, trained "
           f"in {seconds / 60:.1f} min; pictures (RGB | predicted | GT): "
           f"{run_dir / 'pictures.png'}")
@@ -371,7 +371,8 @@ def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "sm
     another name than the template's is named after it (``--file cap3.py``: "cap3")."""
     ex = find(name)
     path = None if baseline and ex.trains else Path(file) if file else working_copy(ex.filename)
-    report = None if path is None else ex.checker(path)
+    report = None if path is None else \
+        check_in_child(ex.checker, path, f"{ex.number} ({ex.name})")   # in a process apart
     if report is not None:
         print(report.text())
     if not ex.trains:
@@ -382,7 +383,7 @@ def run_exercise(name: str, file=None, baseline: bool = False, budget: str = "sm
         again = f" --file {file}" if file else ""
         raise SystemExit(f"exercise {ex.name}: fix the problems above first "
                          f"(python -m minid3rqn check {ex.name}{again})")
-    module = None if path is None else report.module
+    module = None if path is None else load(path, Report(report.exercise, path))
     named = path.stem if path is not None and path.name != ex.filename else None
     try:
         if ex.trains == "depth":

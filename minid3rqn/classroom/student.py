@@ -7,6 +7,8 @@ file is imported under a private module name, so two versions (the template and 
 solution) can be loaded side by side. Every call into it goes through ``call``: a time
 limit, and whatever goes wrong (an exception, an endless loop, ``sys.exit()``, a Ctrl-C)
 becomes one readable line naming the line of the student's file, never a traceback.
+A whole check runs in a process of its own (``check_in_child``), so that code which
+hangs past the time limit, kills its process or forks cannot stop the checker.
 
 A ``Report`` collects one line per check: ``ok`` (passed), ``fail`` (must be fixed, with
 a hint on how) or ``note`` (worth knowing, not an error). A check that cannot go on (the
@@ -18,11 +20,15 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import inspect
+import json
+import os
+import select
 import shutil
 import signal
 import sys
 import textwrap
 import threading
+import time
 import traceback
 from contextlib import contextmanager
 from pathlib import Path
@@ -156,6 +162,112 @@ def time_limit(seconds: float):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
+
+
+# -- the check in a process of its own ------------------------------------------------
+CHECK_SECONDS = 60.0       # wall-clock limit of a whole check, in its own process
+CHECK_CPU_SECONDS = 30     # CPU-time limit of that process (RLIMIT_CPU; all its threads)
+
+
+def _jsonable(value):
+    """numpy scalars and arrays in a check's summary, as JSON can hold them."""
+    return value.tolist() if hasattr(value, "tolist") else str(value)
+
+
+def _stopped(status: int, seconds: float | None, cpu_seconds: int) -> str:
+    """Why the check's process ended without a report, in one line."""
+    if seconds is not None:
+        return (f"your code stopped the checker: it was still running after {seconds:g} s "
+                f"(an infinite loop that ignores the time limit?) and was killed")
+    if os.WIFSIGNALED(status):
+        sig = os.WTERMSIG(status)
+        name = signal.Signals(sig).name if sig in signal.Signals._value2member_map_ else ""
+        why = f" ({name}: more than {cpu_seconds} s of CPU time)" \
+            if sig == getattr(signal, "SIGXCPU", None) else f" ({name})" if name else ""
+        return f"your code stopped the checker: killed by signal {sig}{why}"
+    return (f"your code stopped the checker: it ended the process (exit status "
+            f"{os.waitstatus_to_exitcode(status)}) before the check was done")
+
+
+def check_in_child(checker, path, label: str | None = None, seconds: float = CHECK_SECONDS,
+              cpu_seconds: int = CHECK_CPU_SECONDS) -> Report:
+    """``checker(path)`` (a ``Report``) in a child process of its own session, limited to
+    ``seconds`` of wall-clock time and ``cpu_seconds`` of CPU time (``RLIMIT_CPU``), its
+    whole process group killed when it ends: student code that hangs, ignores the
+    per-call limit, kills its process or forks cannot stop or outlive the check. The
+    report comes back without the module (``report.module`` is None); a child that ends
+    without one gives (``label``: the exercise it names) a report of one failure ("your code stopped the checker: killed by
+    signal 9"). Where processes cannot fork (Windows) the check runs in this process.
+
+    What it protects against: mistakes (an endless loop, a crash, an ``exit()``, a stray
+    ``os.kill``). What it does not: code written to do harm. The child runs as the same
+    user, with the same files: it can delete or change them, and a process it starts in
+    a session of its own is beyond the group's reach."""
+    if not hasattr(os, "fork"):
+        return checker(path)
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:                                          # the child: check, say, end
+        code = 0
+        try:
+            os.close(read)
+            os.setsid()
+            import resource
+            resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds + 5))
+            report = checker(path)
+            data = json.dumps({"exercise": report.exercise, "lines": report.lines,
+                               "template": report.template and str(report.template),
+                               "summary": report.summary}, default=_jsonable).encode()
+            with os.fdopen(write, "wb") as f:
+                f.write(data)
+        except BaseException:                           # noqa: BLE001 - told by the status
+            traceback.print_exc()
+            code = 1
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+    os.close(write)
+    chunks, deadline, late, status = [], time.monotonic() + seconds, None, None
+    try:
+        while status is None:             # until the child ends (what it forked may keep
+            left = deadline - time.monotonic()          # the pipe open), or time is up
+            if left <= 0:
+                late = seconds
+                break
+            if select.select([read], [], [], min(left, 0.05))[0]:
+                chunks.append(os.read(read, 1 << 16))
+            done, code = os.waitpid(pid, os.WNOHANG)
+            status = code if done else None
+        while status is not None and select.select([read], [], [], 0)[0]:
+            chunk = os.read(read, 1 << 16)           # what it wrote before it ended
+            if not chunk:
+                break
+            chunks.append(chunk)
+    finally:                              # Ctrl-C here too: nothing of the check lives on
+        os.close(read)
+        _kill_group(pid)                  # the child if still running, and what it forked
+        if status is None:
+            status = os.waitpid(pid, 0)[1]
+    try:
+        data = json.loads(b"".join(chunks)) if late is None else None
+    except ValueError:
+        data = None
+    if data is None:
+        report = Report(label or Path(path).stem, path)
+        report.fail(_stopped(status, late, cpu_seconds))
+        return report
+    report = Report(data["exercise"], path, data["template"] and Path(data["template"]))
+    report.lines = [tuple(line) for line in data["lines"]]
+    report.summary = data["summary"]
+    return report
+
+
+def _kill_group(pid: int) -> None:
+    try:
+        os.killpg(pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
 
 
 def call(report: Report, what: str, fn, *args, hint: str | None = None, **kwargs):

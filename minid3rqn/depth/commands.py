@@ -24,10 +24,10 @@ from pathlib import Path
 
 from ..config import (UsageError, add_arguments, add_existing_option, as_dict, flat_settings,
                       from_args, setting_names)
-from ..io import (MODELS, check_new_file, check_output, claim_run_folder, load_npz,
-                  read_metadata, reason)
+from ..io import (MODELS, WriteError, check_new_file, check_output, claim_run_folder, hold,
+                  holding, load_npz, read_metadata, reason, whole, write_json)
 from .data import CollectConfig, Sequence, collect_sequence, held_out, load_sequence
-from .train import TrainConfig, check_resume, other_frames, train_depth
+from .train import TrainConfig, check_resume, other_frames, recorded_data, train_depth
 
 RUNS = Path("runs/depth")
 
@@ -93,10 +93,11 @@ def add_arguments_collect(p: argparse.ArgumentParser) -> None:
 
 def run_collect(args) -> int:
     cfg = from_args(CollectConfig, args)
-    out = check_new_file(args.out or RUNS / cfg.scenario / "train.npz", "--out", ".npz",
-                         args.existing)
-    t0 = time.time()
-    seq = collect_sequence(cfg, out)
+    out = check_output(args.out or RUNS / cfg.scenario / "train.npz", "--out", suffix=".npz")
+    with hold(out, "--out"):
+        check_new_file(out, "--out", ".npz", args.existing)
+        t0 = time.time()
+        seq = collect_sequence(cfg, out)
     print(f"collect: {len(seq)} frames in {int(seq.flight.max()) + 1} flights -> {out} "
           f"({time.time() - t0:.1f} s)")
     return 0
@@ -124,6 +125,7 @@ def add_arguments_train_depth(p: argparse.ArgumentParser) -> None:
 # What a train-depth run writes in its folder (--overwrite deletes them; the frames stay)
 DEPTH_OUTPUTS = ("checkpoint.npz", "model.npz", "results.json", "pictures.png", "curve.csv",
                  "curve.png")
+FINISHED = ("model.npz", "results.json", "pictures.png")    # a finished run's files
 
 
 def _check_init_from(path) -> None:
@@ -143,7 +145,8 @@ def _check_init_from(path) -> None:
         if "dispnet" in meta:
             DepthEstimator.load(path)
         else:
-            check_finite(load_npz(path)[0], path)
+            check_finite({k: v for k, v in load_npz(path)[0].items()
+                          if k.startswith(("disp.", "pose."))}, path)
     except ValueError as e:
         raise UsageError(f"--init-from: {str(e).removeprefix('DepthEstimator.load: ')}") \
             from None
@@ -181,15 +184,15 @@ def _claim_depth_run(args, cfg: TrainConfig, run_dir: Path) -> str:
               "--test-data": [args.test_data]}
     if not claim_run_folder(run_dir, args.existing, "--dir", DEPTH_OUTPUTS, inputs=inputs):
         return "new"
-    train = Path(args.data or run_dir / "train.npz").resolve()
-    settings = {**flat_settings(as_dict(cfg)), "data": str(train)}
+    train = recorded_data(args.data or run_dir / "train.npz", run_dir)
+    settings = {**flat_settings(as_dict(cfg)), "data": train}
     try:
         meta = read_metadata(run_dir / "checkpoint.npz")
         check_resume(meta, settings, run_dir / "checkpoint.npz")
     except ValueError as e:
         raise UsageError(f"--resume: {str(e).removeprefix('resume: ')}") from None
-    if meta["iteration"] >= cfg.iterations and all((run_dir / name).is_file()
-                                                   for name in ("model.npz", "results.json")):
+    if meta["iteration"] >= cfg.iterations and all(whole(run_dir / name)
+                                                   for name in FINISHED):
         print(f"the run in {str(run_dir)!r} has finished ({meta['iteration']} of "
               f"{cfg.iterations} iterations); nothing to do (--resume with more "
               f"--iterations trains it on)", file=sys.stderr)
@@ -204,19 +207,33 @@ def run_train_depth(args) -> int:
         _check_init_from(args.init_from)
     run_dir = Path(args.dir or RUNS / data.scenario)
     check_output(run_dir, "--dir", folder=True)
-    stale = _check_frames(args, cfg, data, run_dir)
-    how = _claim_depth_run(args, cfg, run_dir)
-    if how == "finished":
-        return 0
-    for path in stale:                   # --overwrite: frames of other settings go
-        path.unlink()
-    train_depth(cfg, data, run_dir, args.data, args.test_data, args.init_from,
-                resume=how == "resume", progress=sys.stderr.isatty())
-    meta = json.loads((run_dir / "results.json").read_text())
-    print(json.dumps({"scenario": data.scenario, "seed": cfg.seed,
+    collected = [(p, o) for p, o in ((args.data, "--data"), (args.test_data, "--test-data"))
+                 if p and not Path(p).is_file()]          # frames this run collects there
+    for path, option in collected:
+        check_output(path, option, suffix=".npz")
+    with holding((run_dir, "--dir"), *collected):
+        stale = _check_frames(args, cfg, data, run_dir)
+        how = _claim_depth_run(args, cfg, run_dir)
+        if how == "finished":
+            return 0
+        for path in stale:                   # --overwrite: frames of other settings go
+            path.unlink()
+        try:
+            train_depth(cfg, data, run_dir, args.data, args.test_data, args.init_from,
+                        resume=how == "resume", progress=sys.stderr.isatty())
+        except WriteError as e:          # what was measured is said before the error
+            if getattr(e, "measured", None):
+                _trained_depth(e.measured)
+            raise
+    _trained_depth(json.loads((run_dir / "results.json").read_text()))
+    return 0
+
+
+def _trained_depth(meta: dict) -> None:
+    """What train-depth prints: its held-out results, as one JSON line."""
+    print(json.dumps({"scenario": meta["scenario"], "seed": meta["seed"],
                       "train_seconds": meta["train_seconds"],
                       **{k: round(v, 4) for k, v in meta["results"].items()}}))
-    return 0
 
 
 # -- eval-depth ------------------------------------------------------------------------------
@@ -238,18 +255,26 @@ def add_arguments_eval_depth(p: argparse.ArgumentParser) -> None:
 
 
 def run_eval_depth(args) -> int:
+    if not Path(args.model).is_file():
+        raise UsageError(f"--model: no file {args.model!r}")
+    data = from_args(CollectConfig, _options(args, CollectConfig))
+    outputs = [(out, option) for option, out, suffix in (("--json", args.json, ".json"),
+                                                        ("--pictures", args.pictures, ".png"))
+               if out and check_output(out, option, suffix=suffix)]
+    path = Path(args.test_data or RUNS / data.scenario / "test.npz")
+    if not path.is_file():
+        check_output(path, "--test-data", suffix=".npz")
+    with holding(*outputs, (None if path.is_file() else path, "--test-data")):
+        for out, option in outputs:
+            check_new_file(out, option, Path(out).suffix, args.existing)
+        return _eval_depth(args, data, path)
+
+
+def _eval_depth(args, data: CollectConfig, path: Path) -> int:
     import numpy as np
 
     from .evaluate import DepthEstimator, comparison_picture, errors_by_depth, evaluate
     from .flip import FlipAveraged
-    if not Path(args.model).is_file():
-        raise UsageError(f"--model: no file {args.model!r}")
-    data = from_args(CollectConfig, _options(args, CollectConfig))
-    for option, out, suffix in (("--json", args.json, ".json"),
-                                ("--pictures", args.pictures, ".png")):
-        if out:
-            check_new_file(out, option, suffix, args.existing)
-    path = Path(args.test_data or RUNS / data.scenario / "test.npz")
     test = None
     if path.is_file():              # of the --scenario asked for, if one is
         test = _frames_file(path, "--test-data", getattr(args, "cfg__scenario", None))
@@ -274,14 +299,12 @@ def run_eval_depth(args) -> int:
         print(f"{r['from_m']:4.0f} - {r['to_m']:<4.0f}    {r['share']:.2f}    "
               f"{r['abs_rel']:.3f}     {r['signed_rel']:+.3f}")
     results["by_depth"] = rows
+    results = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in results.items()}
+    print(json.dumps(results))           # said first: a failed write loses no number
     if args.pictures:
         rows = np.linspace(0, len(test) - 1, 6).astype(int)
         comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]),
                            test.depth[rows], args.pictures)
-    text = json.dumps({k: (round(v, 4) if isinstance(v, float) else v)
-                       for k, v in results.items()})
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(text)
-    print(text)
+        write_json(args.json, results)
     return 0

@@ -24,9 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import autograd as ag
-from ..io import load_npz, save_npz
+from ..io import load_npz, reason, save_npz, write_file, write_image
 from ..nets.dispnet import DispNet
-from ..io import reason
 from ..nets.module import check_finite
 from ..world.geometry import relative_transform
 from .data import Sequence
@@ -264,8 +263,6 @@ def evaluate(estimator: DepthEstimator, seq: Sequence, posenet=None) -> dict:
 # -- pictures ----------------------------------------------------------------------------
 def comparison_picture(rgb, pred, gt, path, zoom: int = 3, gap: int = 3) -> Path:
     """Rows of RGB | predicted depth (median-scaled) | GT depth, written as a PNG."""
-    from PIL import Image
-
     from ..viz import depth_to_rgb
     rows = []
     for im, p, g in zip(rgb, pred, gt):
@@ -277,10 +274,7 @@ def comparison_picture(rgb, pred, gt, path, zoom: int = 3, gap: int = 3) -> Path
         rows.append(np.full((gap, rows[-1].shape[1], 3), 255, np.uint8))
     img = np.concatenate(rows[:-1], axis=0)
     img = img.repeat(zoom, 0).repeat(zoom, 1)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(img).save(path)
-    return path
+    return write_image(path, img)
 
 
 class LearningCurve:
@@ -311,9 +305,7 @@ class LearningCurve:
                           **{k: r[k] for k in self.COLUMNS[3:]}})
         text = ",".join(self.COLUMNS) + "\n" + "".join(
             ",".join(f"{rw[k]:.6g}" for k in self.COLUMNS) + "\n" for rw in self.rows)
-        tmp = self.csv.with_suffix(".csv.tmp")
-        tmp.write_text(text)
-        tmp.replace(self.csv)
+        write_file(self.csv, text)
         its = [rw["iteration"] for rw in self.rows]
         line_plot({"held-out abs rel": (its, [rw["abs_rel"] for rw in self.rows]),
                    "held-out delta<1.25": (its, [rw["a1"] for rw in self.rows])},

@@ -30,7 +30,6 @@ evaluation and the model file.
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, replace
@@ -40,14 +39,15 @@ import numpy as np
 
 from .. import autograd as ag
 from ..autograd.optim import Adam
-from ..config import (as_dict, at_least, changed_settings, command_line, flat_settings,
-                      positive, setting, shell_command, validate)
-from ..io import (RunStopped, StopRequest, load_npz, machine, read_metadata, reading_checkpoint,
-                  save_npz)
+from ..config import (as_dict, at_least, changed_settings, command_line, fits_memory,
+                      flat_settings, positive, setting, shell_command, validate)
+from ..io import (RunStopped, StopRequest, WriteError, check_checkpoint_weights, load_npz,
+                  machine, read_metadata, reading_checkpoint, save_npz, whole, write_json)
 from ..nets.dispnet import DispNet
 from ..nets.posenet import PoseNet
 from ..world.geometry import relative_transform
-from .data import CollectConfig, Sequence, collect_sequence, held_out, load_sequence
+from .data import (FRAME_BYTES, CollectConfig, Sequence, collect_sequence, held_out,
+                   load_sequence)
 from .evaluate import DepthEstimator, LearningCurve, comparison_picture, evaluate
 from .geometry import matrix_to_pose_vec
 from .losses import STEP, LossConfig, view_synthesis_loss
@@ -86,7 +86,7 @@ class TrainConfig:
                               check=at_least(0))
     test_frames: int = setting(500, "held-out frames collected for the run (other worlds: "
                                     "seed + 1000)", source="run", cli="more",
-                               check=at_least(3))
+                               check=fits_memory(3, FRAME_BYTES, "frames"))
     loss: LossConfig = setting(default_factory=LossConfig, help="the loss (losses.py)")
 
     def __post_init__(self):
@@ -275,6 +275,7 @@ class Trainer:
         pick = lambda prefix: {k[len(prefix):]: v for k, v in arrays.items()
                                if k.startswith(prefix)}
         with reading_checkpoint(path):
+            check_checkpoint_weights(arrays)
             self.disp.load_state_dict(pick("disp."))
             self.pose.load_state_dict(pick("pose."))
             self.opt.load_state_dict(pick("opt."))
@@ -293,6 +294,14 @@ MAY_CHANGE_ON_RESUME = ("iterations", "lr_decay_at", "checkpoint_every", "log_ev
                         "eval_every")
 
 
+def recorded_data(train_file, run_dir) -> str:
+    """The training frames as a checkpoint records them: relative to the run folder when
+    they lie in it (the default, ``train.npz``: the folder can be moved and resumed),
+    else as a full path."""
+    where, folder = Path(train_file).resolve(), Path(run_dir).resolve()
+    return str(where.relative_to(folder)) if where.is_relative_to(folder) else str(where)
+
+
 def check_resume(meta: dict, settings: dict, path) -> None:
     """ValueError unless a run of ``settings`` ({name: value}) may continue the checkpoint
     at ``path`` with metadata ``meta``: every setting the same but those of
@@ -301,7 +310,14 @@ def check_resume(meta: dict, settings: dict, path) -> None:
     if not (isinstance(meta, dict) and isinstance(meta.get("iteration"), int)
             and isinstance(meta.get("config"), dict)):
         raise ValueError(f"resume: {str(path)!r} is not a train-depth checkpoint")
+    if meta["iteration"] < 0:
+        raise ValueError(f"resume: {str(path)!r} records an impossible iteration "
+                         f"{meta['iteration']}; start afresh with --overwrite")
     saved = {**flat_settings(meta["config"]), **meta.get("settings", {})}
+    data = saved.get("data")
+    if isinstance(data, str) and Path(data).is_absolute() and \
+            recorded_data(data, Path(path).parent) == settings.get("data"):
+        saved["data"] = settings["data"]        # a full path, as older checkpoints record
     changed = changed_settings(saved, settings, MAY_CHANGE_ON_RESUME)
     if changed:
         raise ValueError(f"resume: the checkpoint {str(path)!r} was made with other "
@@ -359,10 +375,14 @@ def train_depth(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
                    progress, own=test_file is None)
     t_data = time.time() - t0
     trainer = Trainer(train, cfg, checkpoint=run_dir / "checkpoint.npz", resume=resume,
-                      settings={"data": str(train_path.resolve())})
-    done = [run_dir / "model.npz", run_dir / "results.json"]
-    if trainer.iteration >= cfg.iterations and all(p.is_file() for p in done):
-        return done[0]                   # a finished run: its model and results stand
+                      settings={"data": recorded_data(train_path, run_dir)})
+    done = [run_dir / "model.npz", run_dir / "results.json", run_dir / "pictures.png"]
+    if trainer.iteration >= cfg.iterations:
+        if all(whole(p) for p in done):
+            return done[0]               # a finished run: its model and results stand
+        damaged = ", ".join(p.name for p in done if not whole(p))
+        print(f"train-depth: the run has finished, but {damaged} is missing or damaged; "
+              f"writing it again")
     if trainer.iteration:
         print(f"train-depth: resuming at iteration {trainer.iteration}")
     elif init_from:
@@ -380,11 +400,15 @@ def train_depth(cfg: TrainConfig, data: CollectConfig, run_dir, train_file=None,
             "train_frames": len(train), "test_frames": len(test),
             "train_seconds": round(t_train, 1), "data_seconds": round(t_data, 1),
             "machine": machine(), "history": trainer.history[-1:]}
-    model = estimator.save(run_dir / "model.npz", meta)
-    (run_dir / "results.json").write_text(json.dumps(meta, indent=2))
-    rows = np.linspace(0, len(test) - 1, 6).astype(int)
-    comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]), test.depth[rows],
-                       run_dir / "pictures.png")
+    try:
+        model = estimator.save(run_dir / "model.npz", meta)
+        write_json(run_dir / "results.json", meta)
+        rows = np.linspace(0, len(test) - 1, 6).astype(int)
+        comparison_picture(test.rgb[rows], estimator.predict(test.rgb[rows]),
+                           test.depth[rows], run_dir / "pictures.png")
+    except WriteError as e:             # the run is measured: the command says so
+        e.measured = meta
+        raise
     return model
 
 

@@ -16,9 +16,13 @@ from ..io import load_npz, save_npz
 
 
 def check_finite(arrays: dict[str, np.ndarray], path) -> None:
-    """ValueError if a weight read from ``path`` holds NaN or inf."""
+    """ValueError if a weight read from ``path`` is not floating point or holds NaN or
+    inf."""
     for name, value in arrays.items():
-        if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+        if value.dtype.kind != "f":
+            raise ValueError(f"{str(path)!r}: weight {name!r} is {value.dtype}, not floating "
+                             f"point; a model file holds float weights")
+        if not np.all(np.isfinite(value)):
             raise ValueError(f"{str(path)!r}: weight {name!r} holds NaN or inf; a model "
                              f"with non-finite weights cannot fly")
 

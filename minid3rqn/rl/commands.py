@@ -19,8 +19,10 @@ import numpy as np
 
 from ..config import (UsageError, add_arguments, add_existing_option, as_dict, flat_settings,
                       from_args)
-from ..io import append_jsonl, check_log, check_output, claim_run_folder, read_metadata
-from .models import actions_and_camera, depth_estimator_for, recorded_result, recorded_text
+from ..io import (WriteError, append_jsonl, check_log, check_output, claim_run_folder, hold,
+                  read_metadata, whole)
+from .models import (actions_and_camera, depth_estimator_for, ensemble_members, recorded_result,
+                     recorded_text, unfinished_warning)
 
 RUNS = Path("runs")
 
@@ -75,9 +77,13 @@ def _check_init_model(t, widen: bool = False) -> None:
     if not Path(t.init_model).is_file():
         raise UsageError(f"--init-model: no file {t.init_model!r}")
     try:
-        theirs = QNetPolicy.load(t.init_model).qnet.config.to_dict()
+        policy = QNetPolicy.load(t.init_model)
     except ValueError as e:
         raise UsageError(f"--init-model: {e}") from None
+    warning = unfinished_warning(policy)
+    if warning:                             # said, as evaluate and fly say it
+        print(f"--init-model: {warning}", file=sys.stderr)
+    theirs = policy.qnet.config.to_dict()
     cam = Camera(hfov_deg=t.hfov_deg)
     mine = t.qnet_config(len(ACTIONS if t.actions is None else t.actions),
                          (cam.height, cam.width)).to_dict()
@@ -93,7 +99,7 @@ def _claim(out: Path, args, cfg, t, depth_file: str) -> str:
     asked to resume that has nothing left to do; said on stderr)."""
     from .train import check_resume
     inputs = {"--init-model": [t.init_model], "--depth-model": [depth_file],
-              "--teachers": getattr(cfg, "teachers", "").split("+")}
+              "--teachers": ensemble_members(getattr(cfg, "teachers", ""))}
     if claim_run_folder(out, args.existing, "--out", inputs=inputs):
         settings = {**flat_settings(as_dict(cfg)), "depth_model": depth_file}
         try:
@@ -103,7 +109,7 @@ def _claim(out: Path, args, cfg, t, depth_file: str) -> str:
             raise UsageError(f"--resume: {str(e).removeprefix('resume: ')}") from None
         model = out / "model.npz"
         try:                             # a model file cut short is written anew
-            finished = model.is_file() and "command" in (read_metadata(model) or {})
+            finished = whole(model) and "command" in (read_metadata(model) or {})
         except ValueError:
             finished = False
         if meta["steps"] >= t.steps and finished:
@@ -144,13 +150,14 @@ def run_train_agent(args) -> int:
     if not _resumes(args, out):          # a resumed run starts from its checkpoint instead
         _check_init_model(cfg)
     depth_file = _depth_file(cfg.depth, args.depth_model, cfg.scenario)
-    how = _claim(out, args, cfg, cfg, depth_file)
-    if how == "finished":
-        return 0
-    t0 = time.time()
-    run = train(cfg, out, est, progress=_progress(), resume=how == "resume",
-                settings={"depth_model": depth_file})
-    return _trained(run, command_for(cfg, out, args.depth_model), args.depth_model, t0)
+    with hold(check_output(out, "--out", folder=True), "--out"):
+        how = _claim(out, args, cfg, cfg, depth_file)
+        if how == "finished":
+            return 0
+        t0 = time.time()
+        run = train(cfg, out, est, progress=_progress(), resume=how == "resume",
+                    settings={"depth_model": depth_file})
+        return _trained(run, command_for(cfg, out, args.depth_model), args.depth_model, t0)
 
 
 # -- distil ----------------------------------------------------------------------------------
@@ -185,13 +192,14 @@ def run_distil(args) -> int:
     if not _resumes(args, out):
         _check_init_model(t, widen=cfg.init_widen)
     depth_file = _depth_file(t.depth, args.depth_model, t.scenario)
-    how = _claim(out, args, cfg, t, depth_file)
-    if how == "finished":
-        return 0
-    t0 = time.time()
-    run = distil(cfg, out, est, progress=_progress(), resume=how == "resume",
-                 settings={"depth_model": depth_file})
-    return _trained(run, command_for(cfg, out, args.depth_model), args.depth_model, t0)
+    with hold(check_output(out, "--out", folder=True), "--out"):
+        how = _claim(out, args, cfg, t, depth_file)
+        if how == "finished":
+            return 0
+        t0 = time.time()
+        run = distil(cfg, out, est, progress=_progress(), resume=how == "resume",
+                     settings={"depth_model": depth_file})
+        return _trained(run, command_for(cfg, out, args.depth_model), args.depth_model, t0)
 
 
 # -- evaluate --------------------------------------------------------------------------------
@@ -200,7 +208,8 @@ def add_arguments_evaluate(p: argparse.ArgumentParser) -> None:
     from .models import BASELINES
     p.add_argument("policies", nargs="+",
                    help=f"baselines ({', '.join(BASELINES)}) and/or Q-net .npz files "
-                        "(A.npz+B.npz+...: an ensemble, greedy on the members' mean Q-values)")
+                        "(A.npz+B.npz+...: an ensemble, greedy on the members' mean Q-values; "
+                        "a name that is an existing file is that one file, '+' or not)")
     add_arguments(p, EvalConfig)
     p.add_argument_group("files").add_argument(
         "--json", default=None, help="append results to this JSON-lines file")
@@ -244,7 +253,7 @@ def run_fly(args) -> int:
     from .models import SHIPPED_QNETS, load_qnet_policy, shipped_depth_model
     cfg = from_args(FlyConfig, args)
     seed = cfg.seed if cfg.seed is not None else int(np.random.SeedSequence().entropy % 10**6)
-    parts = [str(SHIPPED_QNETS.get(part, part)) for part in cfg.model.split("+")]
+    parts = [str(SHIPPED_QNETS.get(part, part)) for part in ensemble_members(cfg.model)]
     for part in parts:
         if not Path(part).is_file():
             raise UsageError(f"--model: Q-net {part!r} not found (expected a shipped name, "
@@ -258,6 +267,10 @@ def run_fly(args) -> int:
         actions_and_camera(*policies)          # nets flown together fly one setting
     except ValueError as e:
         raise UsageError(f"--model: {e}") from None
+    for policy in policies:
+        warning = unfinished_warning(policy)
+        if warning:
+            print(warning, file=sys.stderr)
     depth = cfg.depth
     depth_model = shipped_depth_model(cfg.scenario) if depth == "pred" else None
     est = _estimator(depth, depth_model, cfg.scenario, cfg.flip_tta, option="--scenario")
@@ -268,20 +281,32 @@ def run_fly(args) -> int:
     except ValueError as e:
         recorded = None
         print(f"note: {e}; its recorded results are not quoted", file=sys.stderr)
-    out = fly(policies, est, cfg.scenario, seed, cfg.flights, cfg.gif, mirror=cfg.mirror)
+    with hold(cfg.gif, "--gif"):
+        try:
+            out = fly(policies, est, cfg.scenario, seed, cfg.flights, cfg.gif,
+                      mirror=cfg.mirror, progress=_progress())
+        except WriteError as e:          # what was measured is said before the error
+            _flown(e.measured, depth, recorded, model)
+            raise
+    _flown(out, depth, recorded, model)
+    return 0
+
+
+def _flown(out: dict, depth: str, recorded, model: str) -> None:
+    """What ``fly`` prints: its result as JSON, then in words (with the recorded result
+    of a shipped model)."""
     print(json.dumps(out))
     by_world = "" if out["ci95_by_world"] is None else \
         f"; by world {out['ci95_by_world'][0]:.2f}-{out['ci95_by_world'][1]:.2f}, " \
         f"{out['worlds']} worlds"
     print(f"success {out['successes']}/{out['flights']} = {out['success_rate']:.2f} "
           f"(95% CI {out['ci95'][0]:.2f}-{out['ci95'][1]:.2f}{by_world}) on {depth} depth; "
-          f"GIF: {out['gif']}", file=sys.stderr)
+          f"GIF: {out['gif'] or 'not written'}", file=sys.stderr)
     if recorded:
         print(f"note: {out['flights']} flights give a wide interval; this model's recorded "
               f"result here: {recorded_text(recorded)}. See "
               f"{Path(model).with_suffix('.json').name} beside it, docs/results.md and "
               "docs/beyond.md", file=sys.stderr)
-    return 0
 
 
 # -- reproduce -------------------------------------------------------------------------------
@@ -302,13 +327,14 @@ def run_reproduce(args) -> int:
     out = check_output(args.out, "--out", folder=True)
     try:            # the runs it finds in --out are continued (made with these settings)
         how = {"workers": cfg.workers, "executor": cfg.executor}
-        if cfg.quick:
-            reproduce_quick(out, seed=cfg.seed, **how)
-        elif cfg.recipe == "paper":
-            reproduce(out, seed=cfg.seed, skip_depth=cfg.skip_depth, **how)
-        else:
-            reproduce_distilled(out, seed=cfg.seed, skip_depth=cfg.skip_depth,
-                                students=cfg.students, **how)
+        with hold(out, "--out"):
+            if cfg.quick:
+                reproduce_quick(out, seed=cfg.seed, **how)
+            elif cfg.recipe == "paper":
+                reproduce(out, seed=cfg.seed, skip_depth=cfg.skip_depth, **how)
+            else:
+                reproduce_distilled(out, seed=cfg.seed, skip_depth=cfg.skip_depth,
+                                    students=cfg.students, **how)
     except ValueError as e:
         raise UsageError(f"--out: {e}") from None
     return 0

@@ -133,8 +133,9 @@ class LabelledReplay(EpisodeReplay):
 def load_teacher(spec: str, frame_shape, n_actions: int):
     """'A.npz' or 'A.npz+B.npz+...' -> a QNetPolicy or an EnsemblePolicy, checked to read
     frames of ``frame_shape`` and to score ``n_actions`` actions (ValueError otherwise)."""
+    from .models import ensemble_members
     from .policies import EnsemblePolicy, QNetPolicy
-    parts = str(spec).split("+")
+    parts = ensemble_members(spec)
     if not spec or any(not p for p in parts):
         raise ValueError(f"teachers: expected Q-net .npz files joined by '+'; got {spec!r}")
     members = []

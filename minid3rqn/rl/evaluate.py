@@ -39,7 +39,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..config import ConfigError, at_least, setting, shell_command, validate
+from ..config import (FLIGHT_BYTES, ConfigError, at_least, capped_workers, check_seed,
+                      fits_memory, setting, shell_command, up_to, validate)
 from ..executor import EXECUTORS, get_executor
 from ..world import DroneEnv
 from .policies import Policy
@@ -256,6 +257,7 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
     ``camera``: the flights' (default: those the policy's Q-nets were trained with,
     recorded in their files; else the world's).
     """
+    seed = check_seed(seed, "evaluate_policy: seed")
     if n_flights < 1:
         raise ValueError(f"evaluate_policy: n_flights must be >= 1; got {n_flights}")
     if chunk < 1:
@@ -299,9 +301,11 @@ def evaluate_policy(policy: Policy, scenario: str = "basic", n_flights: int = 20
 @dataclass
 class EvalConfig:
     """How ``evaluate`` flies a policy (``evaluate_spec``)."""
-    flights: int = setting(2000, "test flights", source="paper", check=at_least(1))
+    flights: int = setting(2000, "test flights", source="paper",
+                           check=up_to(1, 10 ** 6, "a million flights give a 95% interval "
+                                                   "about 0.001 wide"))
     steps: int = setting(50, "steps without a collision for a success", source="paper",
-                         check=at_least(1))
+                         check=up_to(1, 10 ** 4, "the paper's flights last 50"))
     scenario: str = setting("basic", "the test worlds", source="run",
                             choices=("basic", "channel", "intersections", "corners"))
     seed: int = setting(12345, "the test worlds' seed", source="run",
@@ -316,9 +320,11 @@ class EvalConfig:
                                    "of the scenario)", source="run")
     chunk: int = setting(500, "flights stepped together; each chunk flies its own pool of "
                               "worlds, so the chunk is part of which worlds the seed draws "
-                              "(the record gives it)", source="run", check=at_least(1))
+                              "(the record gives it)", source="run",
+                         check=fits_memory(1, FLIGHT_BYTES, "flights stepped together"))
     workers: int = setting(1, "processes flying the chunks, one per core (the same "
-                              "result; run with OMP_NUM_THREADS=1)", source="run",
+                              "result; run with OMP_NUM_THREADS=1; with the local "
+                              "executor at most the cores)", source="run",
                            check=at_least(1))
     executor: str = setting("local", "where the chunks fly: processes of this machine "
                                      "(--workers), or Ray tasks on the cluster ray.init() "
@@ -331,6 +337,8 @@ class EvalConfig:
 
     def __post_init__(self):
         validate(self)
+        if self.executor == "local":    # a cluster has cores of its own
+            capped_workers(self)
         if self.depth == "gt":          # the DispNet's settings, where no DispNet reads
             if self.depth_model:
                 raise ConfigError("depth_model", self.depth_model, "none with --depth gt "

@@ -12,11 +12,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import viz
-from ..config import at_least, setting, validate
+from ..config import FLIGHT_BYTES, at_least, check_seed, fits_memory, setting, validate
+from ..io import WriteError
 from ..world import DroneEnv, render_batch, topdown
 from .evaluate import by_world, run_flights, wilson_interval
 from .mirror import MirroredPolicy
-from .models import actions_and_camera, load_qnet_policy
+from .models import actions_and_camera, ensemble_members, load_qnet_policy
 from .observe import MAX_DEPTH
 from .policies import EnsemblePolicy
 
@@ -34,7 +35,8 @@ class FlyConfig:
     depth: str = setting("pred", "what the Q-net reads: the DispNet's depth or GT depth",
                          source="run", choices=("gt", "pred"))
     flights: int = setting(32, "flights for the success rate (the DispNet runs on every "
-                               "frame: keep it small)", source="run", check=at_least(1))
+                               "frame: keep it small)", source="run",
+                          check=fits_memory(1, FLIGHT_BYTES, "flights flown together"))
     seed: int | None = setting(None, "world seed (none: random)", source="run",
                                check=at_least(0))
     gif: str = setting("runs/fly.gif", "the GIF of flight 0", source="run")
@@ -54,14 +56,17 @@ def action_names(actions) -> list[str]:
 
 
 def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flights: int = 200,
-        gif="runs/fly.gif", max_steps: int = 50, mirror: bool = False) -> dict:
+        gif="runs/fly.gif", max_steps: int = 50, mirror: bool = False,
+        progress: bool = False) -> dict:
     """Fly ``n_flights`` in fresh worlds (test seeds); GIF of flight 0; success rate.
     ``model``: a Q-net .npz, or several joined by '+' (an ensemble on their mean Q), or
     the loaded policies; they fly with the action table and camera they were trained
-    with. ``mirror``: each net also flies the mirrored view (``rl.mirror``)."""
+    with. ``mirror``: each net also flies the mirrored view (``rl.mirror``).
+    ``progress``: a bar of the steps flown, from the first."""
     t0 = time.time()
+    seed = check_seed(seed, "fly: seed")
     members = list(model) if isinstance(model, (list, tuple)) else \
-        [load_qnet_policy(part) for part in str(model).split("+")]
+        [load_qnet_policy(part) for part in ensemble_members(model)]
     actions, camera = actions_and_camera(*members)
     if mirror:
         members += [MirroredPolicy(m) for m in members]
@@ -97,7 +102,21 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
             frames_out.append(viz.label(viz.hstack([top] + panels, 192), "COLLISION",
                                         (200, 4), (255, 40, 40)))
 
-    survived = run_flights(policy, env, max_steps, record=record)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=max_steps, unit="step", desc=f"fly {n_flights} flights",
+                   dynamic_ncols=True, leave=False)
+
+    def recorded(*step):
+        record(*step)
+        if bar is not None:
+            bar.update(1)
+    try:
+        survived = run_flights(policy, env, max_steps, record=recorded)
+    finally:
+        if bar is not None:
+            bar.close()
     success = survived >= max_steps
     k = int(success.sum())
     lo, hi = wilson_interval(k, n_flights)
@@ -105,11 +124,16 @@ def fly(model, depth_estimator, scenario: str = "basic", seed: int = 0, n_flight
     # one to read for "how well does it fly this scenario", and it is wider
     w = by_world(success, env.scene_seeds)
     one_world = len(w.flights) < 2          # then there is no interval by world
-    gif = viz.write_gif(frames_out, gif, fps=4)
-    return {"scenario": scenario, "seed": seed, "flights": n_flights, "successes": k,
+    out = {"scenario": scenario, "seed": seed, "flights": n_flights, "successes": k,
             "success_rate": k / n_flights, "ci95": [round(lo, 4), round(hi, 4)],
             "worlds": len(w.flights),
             "ci95_by_world": None if one_world else [round(w.ci_low, 4), round(w.ci_high, 4)],
             "design_effect": None if one_world else round(w.design_effect, 3),
             "depth": depth, "gif": str(gif), "seconds": round(time.time() - t0, 1),
             "flight0_steps": int(survived[0])}
+    try:
+        viz.write_gif(frames_out, gif, fps=4)
+    except WriteError as e:              # the flights are measured: say so with the error
+        e.measured = {**out, "gif": None}
+        raise
+    return out

@@ -73,6 +73,15 @@ def unfinished_warning(policy) -> str | None:
 
 
 # -- policies by name ----------------------------------------------------------------------
+def ensemble_members(spec: str) -> list[str]:
+    """The Q-net files a spec names. The rule for '+': a spec that is an existing file is
+    that one file, '+' in its name or not; any other spec is files joined by '+' (an
+    ensemble). So ``a+b.npz`` flies alone when that file exists, and a file with '+' in
+    its name joins an ensemble under another name (a copy or a symbolic link)."""
+    spec = str(spec)
+    return [spec] if Path(spec).is_file() else spec.split("+")
+
+
 def load_qnet_policy(path):
     """A Q-net file as a greedy ``QNetPolicy`` named by its variant (D3RQN, D3QN-stack5...)."""
     from ..nets.qnet import variant_name
@@ -98,7 +107,7 @@ def load_policy(spec: str, seed: int = 0, mirror: bool = False):
                  "reactive": lambda: ReactivePolicy(ACTIONS)}
     if spec in baselines:
         return baselines[spec]()
-    parts = spec.split("+")
+    parts = ensemble_members(spec)
     for part in parts:
         if part in BASELINES or not Path(part).is_file():
             what = "is a baseline (only Q-nets join with '+')" if part in BASELINES else \
@@ -173,7 +182,7 @@ def ship(model, name: str, records=()) -> Path:
     evaluation. ValueError, before anything is written, otherwise."""
     import re
 
-    from ..io import load_npz, save_npz
+    from ..io import load_npz, save_npz, write_json
     model = Path(model)
     if not re.fullmatch(r"[a-z0-9_]+", name):
         raise ValueError(f"ship: name must be lowercase letters, digits and '_' (the file "
@@ -189,7 +198,7 @@ def ship(model, name: str, records=()) -> Path:
     else:
         about = {**_finished_qnet(model, meta), "evaluations": _evaluations(model, records)}
     path = save_npz(MODELS / f"{name}.npz", arrays, meta)
-    path.with_suffix(".json").write_text(json.dumps(about, indent=2) + "\n")
+    write_json(path.with_suffix(".json"), about)
     return path
 
 
@@ -212,7 +221,7 @@ def _evaluations(model: Path, records) -> list[dict]:
     ValueError if there is none."""
     rows = []
     for r in records:
-        if "+" in r.get("spec", "+") or r.get("unfinished"):
+        if len(ensemble_members(r.get("spec", "+"))) > 1 or r.get("unfinished"):
             continue
         if Path(r["spec"]).resolve() != model.resolve():
             continue

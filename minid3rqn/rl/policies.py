@@ -328,8 +328,12 @@ class QNetPolicy(Policy):
         arrays, meta = load_npz(path)
         meta = meta if isinstance(meta, dict) else {}
         if "qnet_config" not in meta:
-            what = "a depth model" if "disp" in " ".join(arrays) or meta.get("config") \
-                else "no Q-net"
+            if "steps" in meta and any(k.startswith("agent.") for k in arrays):
+                what = "a training checkpoint (its run's Q-net is model.npz beside it)"
+            elif "iteration" in meta or "dispnet" in meta:
+                what = "a depth model" if "dispnet" in meta else "a depth training checkpoint"
+            else:
+                what = "no Q-net"
             raise ValueError(f"{str(path)!r} is {what}, not a Q-net file (expected a model "
                              f"written by train-agent or distil)")
         check_finite(arrays, path)

@@ -29,14 +29,14 @@ Every model lands with the ``train-agent`` or ``distil`` command that makes it a
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ..config import at_least, setting, validate
+from ..config import at_least, capped_workers, setting, validate
 from ..executor import EXECUTORS, get_executor
+from ..io import write_file, write_json
 from .distill import DistilConfig, distil, student
 from .evaluate import EvalConfig, evaluate_spec
 from .evaluate import TEST_WORLDS
@@ -71,8 +71,9 @@ class ReproduceConfig:
     skip_depth: bool = setting(False, "reuse the shipped depth models instead of training "
                                       "them", source="run")
     workers: int = setting(1, "processes training the Q-nets and flying the evaluations, "
-                              "that many at a time (run with OMP_NUM_THREADS=1)",
-                           source="run", check=at_least(1))
+                              "that many at a time (run with OMP_NUM_THREADS=1; with the "
+                              "local executor at most the cores)", source="run",
+                           check=at_least(1))
     executor: str = setting("local", "where the trainings and evaluations run: processes "
                                      "of this machine (--workers), or Ray tasks on the "
                                      "cluster ray.init() finds (RAY_ADDRESS; the run "
@@ -85,6 +86,8 @@ class ReproduceConfig:
 
     def __post_init__(self):
         validate(self)
+        if self.executor == "local":    # a cluster has cores of its own
+            capped_workers(self)
 
 
 # The shipped depth recipe (docs/depth.md, sections 5 and 7): basic from scratch with the
@@ -268,9 +271,9 @@ def reproduce(out: Path, seed: int = 0, skip_depth: bool = False, workers: int =
     for sc in TRANSFER:
         results["table6"] += run_eval(baselines + [models["d3rqn"]], sc)
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
-    (out / "results.json").write_text(json.dumps(results, indent=2))
-    (out / "results.md").write_text(markdown_tables(results))
-    print(markdown_tables(results))
+    print(markdown_tables(results))       # said first: a failed write loses no number
+    write_json(out / "results.json", results)
+    write_file(out / "results.md", markdown_tables(results))
     return results
 
 
@@ -374,9 +377,9 @@ def reproduce_distilled(out: Path, seed: int = 0, students: int = 1,
     results["teacher"] = _evaluate(teacher, "basic", budget, seed, "gt", None, ex)
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
     agents.mkdir(parents=True, exist_ok=True)
-    (agents / "results.json").write_text(json.dumps(results, indent=2))
-    (agents / "results.md").write_text(distilled_table(results))
-    print(distilled_table(results))
+    print(distilled_table(results))       # said first: a failed write loses no number
+    write_json(agents / "results.json", results)
+    write_file(agents / "results.md", distilled_table(results))
     return results
 
 
@@ -461,7 +464,7 @@ def reproduce_quick(out: Path, seed: int = 0, workers: int = 1,
         results["table6"] += [fly(s, sc) for s in ["straight", "random", models[0]]]
     results["finished"] = time.strftime("%Y-%m-%d %H:%M:%S")
     text = markdown_tables(results) + "\n" + QUICK_NOTE + "\n"
-    (out / "results.json").write_text(json.dumps(results, indent=2))
-    (out / "results.md").write_text(text)
-    print("\n" + text)
+    print("\n" + text)                    # said first: a failed write loses no number
+    write_json(out / "results.json", results)
+    write_file(out / "results.md", text)
     return results

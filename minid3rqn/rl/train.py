@@ -21,6 +21,7 @@ flights' state and every generator, so a resumed run is the run that was cut off
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import time
@@ -29,9 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import (ConfigError, as_dict, at_least, between, changed_settings, flat_settings,
-                      positive, setting, validate)
-from ..io import RunStopped, StopRequest, load_npz, reading_checkpoint, save_npz
+from ..config import (FLIGHT_BYTES, FLIGHT_STEPS, ConfigError, as_dict, at_least, between,
+                      changed_settings, fits_memory, flat_settings, positive, setting, up_to,
+                      validate)
+from ..io import (RunStopped, StopRequest, check_checkpoint_weights, load_npz,
+                  reading_checkpoint, save_npz, write_file)
 from ..nets.qnet import QNetConfig
 from ..world import DroneEnv
 from .agent import Agent, AgentConfig, FrameStacker
@@ -64,8 +67,10 @@ class TrainConfig:
     batch_size: int = setting(32, "replay windows per update", source="paper",
                               check=at_least(1))
     seq_len: int | None = setting(None, "steps per replay window (5; none: 5 for the "
-                                        "recurrent variants, 1 for the others)",
-                                  source="paper", check=at_least(1))
+                                        "recurrent variants, 1 for the others; at most "
+                                        "a flight's 50 steps)",
+                                  source="paper",
+                                  check=up_to(1, FLIGHT_STEPS, "a flight's 50 steps"))
     agent: AgentConfig = setting(default_factory=AgentConfig)
     # -- the budget (ours: scaled to a laptop)
     steps: int = setting(60_000, "environment transitions (all flights)", source="budget",
@@ -73,7 +78,8 @@ class TrainConfig:
     learning_starts: int = setting(5_000, "transitions before the first update",
                                    source="budget", check=at_least(0))
     replay_capacity: int = setting(100_000, "frames in the replay (3.3 KB each: 100,000 "
-                                            "take 333 MB)", source="budget", check=at_least(64))
+                                            "take 333 MB)", source="budget",
+                                   check=fits_memory(64, 3.3e3, "replay frames"))
     eps_decay_steps: int = setting(50_000, "transitions over which epsilon falls",
                                    source="budget", check=at_least(1))
     hidden: int = setting(128, "LSTM / fully connected width", source="budget",
@@ -83,7 +89,8 @@ class TrainConfig:
     eps_end: float = setting(0.05, "epsilon after eps_decay_steps", source="budget",
                              check=between(0, 1), cli="more")
     n_envs: int = setting(16, "flights stepped together", source="budget",
-                          check=at_least(1), cli="more")
+                          check=fits_memory(1, FLIGHT_BYTES, "flights stepped together"),
+                          cli="more")
     updates_per_step: float = setting(4.0, "updates per step of all flights (1.0 gave 0.764 "
                                            "against 0.871: docs/results.md)",
                                       source="budget", check=positive, cli="more")
@@ -99,8 +106,10 @@ class TrainConfig:
     depth: str = setting("gt", "what the Q-net reads: GT depth or the DispNet's",
                          source="run", choices=("gt", "pred"))
     init_model: str = setting("", "start from this Q-net .npz (fine-tuning)", source="run")
-    stack: int = setting(1, "frames per observation (5: a window as channels)",
-                         source="run", check=at_least(1), cli="more")
+    stack: int = setting(1, "frames per observation (5: a window as channels; at most a "
+                            "flight's 50 steps)",
+                         source="run", check=up_to(1, FLIGHT_STEPS, "a flight's 50 steps"),
+                         cli="more")
     log_every: int = setting(2_000, "transitions between learning-curve rows",
                              source="run", check=at_least(1), cli="more")
     checkpoint_every: int = setting(10_000, "transitions between checkpoints",
@@ -231,10 +240,11 @@ class Run:
 
     def write_curve(self) -> None:
         keys = list(dict.fromkeys(k for row in self.curve for k in row))
-        with open(self.out / "curve.csv", "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=keys, restval="")
-            writer.writeheader()
-            writer.writerows(self.curve)
+        text = io.StringIO(newline="")
+        writer = csv.DictWriter(text, fieldnames=keys, restval="")
+        writer.writeheader()
+        writer.writerows(self.curve)
+        write_file(self.out / "curve.csv", text.getvalue())
         try:
             from ..viz import learning_curve_png
             learning_curve_png(self.curve, self.out / "curve.png", title=f"{self.cfg.variant} "
@@ -280,6 +290,7 @@ class Run:
             return {k[len(prefix) + 1:]: v for k, v in arrays.items()
                     if k.startswith(prefix + ".")}
         with reading_checkpoint(self.out / "checkpoint.npz"):
+            check_checkpoint_weights(arrays)
             self.agent.load_state_dict(part("agent"))
             self.replay.load_state_dict(part("replay"))
             self.env.load_state_dict(part("env"), meta["env_meta"])
@@ -306,6 +317,11 @@ def check_resume(meta: dict, settings: dict, where) -> None:
             and isinstance(meta.get("settings") or meta.get("config"), dict)):
         raise ValueError(f"resume: the checkpoint in {str(where)!r} is not one of train-agent "
                          f"or distil")
+    if meta["steps"] < 0 or not isinstance(meta.get("episodes", 0), int) \
+            or meta.get("episodes", 0) < 0:
+        raise ValueError(f"resume: the checkpoint in {str(where)!r} records an impossible "
+                         f"count ({meta['steps']} steps, {meta.get('episodes')} episodes); "
+                         f"start afresh with --overwrite")
     saved = meta.get("settings") or flat_settings(meta["config"])
     made, now = (("distil" if "teachers" in s else "train-agent") for s in (saved, settings))
     if made != now:
