@@ -553,6 +553,34 @@ def test_the_papers_setting_is_trained_once_and_reused(tmp_path, monkeypatch):
         run_exercise("reward", file=clip, budget="smoke", out=tmp_path, progress=False)
 
 
+def test_the_papers_setting_is_trained_again_after_an_edit_of_the_package(tmp_path, monkeypatch,
+                                                                          capsys):
+    """A baseline is keyed by the package's code too: after an edit (another source
+    digest) the paper's setting is trained again, and the run says so in one line."""
+    from minid3rqn.classroom import runner
+    first = runner.run_exercise("reward", baseline=True, budget="smoke", out=tmp_path,
+                                progress=False)
+    assert capsys.readouterr().out.count("has changed") == 0
+    monkeypatch.setattr(runner, "source_digest", lambda root=None: "0" * 40)
+    again = runner.run_exercise("reward", baseline=True, budget="smoke", out=tmp_path,
+                                progress=False)
+    said = [line for line in capsys.readouterr().out.split("\n") if "has changed" in line]
+    assert len(said) == 1 and str(Path(first["model"]).parent) in said[0], said
+    assert again["model"] != first["model"] and Path(again["model"]).is_file()
+
+
+def test_source_digest_follows_the_code(tmp_path):
+    from minid3rqn.classroom.runner import source_digest
+    (tmp_path / "a.py").write_text("x = 1\n")
+    (tmp_path / "classroom" / "templates").mkdir(parents=True)
+    (tmp_path / "classroom" / "templates" / "reward.py").write_text("y = 1\n")
+    before = source_digest(tmp_path)
+    (tmp_path / "classroom" / "templates" / "reward.py").write_text("y = 2\n")
+    assert source_digest(tmp_path) == before          # the templates never train
+    (tmp_path / "a.py").write_text("x = 2\n")
+    assert source_digest(tmp_path) != before
+
+
 def test_run_depth_exercise_smoke(tmp_path):
     from minid3rqn.classroom.runner import run_exercise
     res = run_exercise("depth-loss", file=SOLUTIONS / "photometric.py", budget="smoke",

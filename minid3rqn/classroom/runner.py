@@ -14,8 +14,9 @@ depth exercise (7) trains DispNet + PoseNet and reports abs rel and delta < 1.25
 against ground truth on held-out frames.
 
 The paper's setting is the same training for every agent exercise: it is trained once
-per (budget, seed, variant, ...) into ``<out>/baseline/<key>/`` and reused by every
-exercise that compares against it. Every run writes ``<out>/<exercise>/<run>/result.json``;
+per (budget, seed, variant, ...) and version of the package's code into
+``<out>/baseline/<key>/`` and reused by every exercise that compares against it; after
+an edit of the package it is trained again (and the run says so). Every run writes ``<out>/<exercise>/<run>/result.json``;
 runs with the same budget and seed are comparable.
 """
 from __future__ import annotations
@@ -150,13 +151,38 @@ def _train(cfg, s: dict, folder: Path, progress: bool, reuse: bool) -> tuple[Pat
     return model, seconds
 
 
-def baseline_folder(cfg, budget: str, out=OUT) -> Path:
+PACKAGE = Path(__file__).resolve().parent.parent
+
+
+def source_digest(root=PACKAGE) -> str:
+    """A digest of the code that trains: every .py file of the package (its path and
+    bytes), but the exercise templates, which a baseline never runs. Edit the package and
+    the digest changes."""
+    h = hashlib.sha1()
+    for path in sorted(Path(root).rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        if rel.startswith("classroom/templates/") or "__pycache__" in rel:
+            continue
+        h.update(rel.encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def baseline_folder(cfg, budget: str, out=OUT, source: str | None = None) -> Path:
     """Where the paper's setting ``cfg`` (a TrainConfig) is trained once and reused:
-    named by its variant, scenario, budget and seed, and a digest of all its settings."""
+    named by its variant, scenario, budget and seed, a digest of all its settings and
+    one of the package's code (``source``, default ``source_digest()``): a baseline is
+    reused only by the code that trained it."""
     from ..config import as_dict
     digest = hashlib.sha1(json.dumps(as_dict(cfg), sort_keys=True).encode()).hexdigest()
     return Path(out) / "baseline" / f"{cfg.variant}-{cfg.scenario}-{budget}-s{cfg.seed}-" \
-                                    f"{digest[:8]}"
+                                    f"{digest[:8]}-code{(source or source_digest())[:8]}"
+
+
+def older_baselines(folder: Path) -> list[Path]:
+    """Baselines of the same setting trained by other versions of the package's code."""
+    stem = folder.name.rsplit("-code", 1)[0]
+    return sorted(p.parent for p in folder.parent.glob(f"{stem}-code*/model.npz")
+                  if p.parent != folder)
 
 
 STUDENT_FUNCTIONS = ("reward_fn", "td_target", "depth_fn")
@@ -188,6 +214,10 @@ def run_agent_exercise(ex: Exercise, module, summary: dict | None = None, budget
     else:
         what = (f"training {cfg.variant} for {cfg.steps} transitions (budget '{budget}': "
                 f"about {AGENT_BUDGETS[budget]['minutes']:g} min on a free core)")
+        older = older_baselines(folder) if shared else []
+        if older:               # the same setting, trained by other code: not reused
+            what = (f"the package's code has changed since the paper's setting was trained "
+                    f"({older[-1]}), so it is trained again: " + what.removeprefix("training "))
     print(f"exercise {ex.name} [{tag}]: {what}; then {n_flights} test flights"
           + (" on GT depth and on predicted depth" if est else "") + f" -> {run_dir}",
           flush=True)

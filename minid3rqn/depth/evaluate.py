@@ -309,5 +309,6 @@ class LearningCurve:
         its = [rw["iteration"] for rw in self.rows]
         line_plot({"held-out abs rel": (its, [rw["abs_rel"] for rw in self.rows]),
                    "held-out delta<1.25": (its, [rw["a1"] for rw in self.rows])},
-                  self.png, title="train-depth: held-out depth quality (200 frames)",
+                  self.png, title=f"{'/'.join(self.png.resolve().parts[-3:-1])}: held-out "
+                                  f"depth quality (200 frames)",
                   xlabel="iteration", ylim=(0.0, 1.0))

@@ -71,8 +71,9 @@ class TrainConfig:
                            "collects)", source="run", check=at_least(0))
     lr_decay_at: int | None = setting(None, "from this iteration on, lr x 0.1 (none: never)",
                                       source="ours", check=at_least(1))
-    init_disp: float = setting(0.5, "disparity the heads start at (1 / metres): 0.5 = 2 m, "
-                                    "0.1 = 10 m (every shipped DispNet: 0.1)", source="ours",
+    init_disp: float = setting(0.1, "disparity the heads start at (1 / metres): 0.1 = 10 m, "
+                                    "beyond the scenes' depth (every shipped DispNet)",
+                               source="ours",
                                check=lambda v: None if 0.01 < v < 10.01 else
                                "a disparity in (0.01, 10.01), DispNet's range")
     gyro_yaw: bool = setting(False, "warp with the (simulated, noisy) rate gyro's yaw in "

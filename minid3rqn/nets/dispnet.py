@@ -51,7 +51,7 @@ class DispNet(Module):
 
     def __init__(self, encoder=(16, 32, 64, 96), decoder=(16, 16, 32, 64), n_scales: int = 4,
                  disp_scale: float = 10.0, min_disp: float = 0.01,
-                 init_disp: float | None = 0.5, rng=0, dtype=np.float32):
+                 init_disp: float | None = 0.1, rng=0, dtype=np.float32):
         rng = as_rng(rng)
         if len(encoder) != len(decoder):
             raise ValueError(f"DispNet: encoder and decoder need one entry per level; got "
@@ -76,9 +76,9 @@ class DispNet(Module):
         for i in range(n_scales):
             self.heads.append(Conv2d(decoder[i], 1, 3, padding=1, rng=rng, dtype=dtype))
         if init_disp is not None:
-            # Start in the log-middle of the range [b, a + b] instead of at a/2 + b (near
-            # its top), so near and far surfaces both fit inside the range as the scale
-            # settles (docs/depth.md, "choices").
+            # Start far (0.1: 10 m, beyond the scenes' depth) rather than at a/2 + b (0.2 m):
+            # a depth guessed too near makes every warp worse than none, a guess too far
+            # gets pulled nearer (docs/depth.md, section 5).
             q = (init_disp - min_disp) / disp_scale
             for head in self.heads:
                 head.bias.set_(np.log(q / (1 - q)))

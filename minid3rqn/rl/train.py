@@ -247,10 +247,15 @@ class Run:
         write_file(self.out / "curve.csv", text.getvalue())
         try:
             from ..viz import learning_curve_png
-            learning_curve_png(self.curve, self.out / "curve.png", title=f"{self.cfg.variant} "
-                               f"on {self.cfg.scenario}, seed {self.cfg.seed}")
+            learning_curve_png(self.curve, self.out / "curve.png", title=f"{self.run_name()}: "
+                               f"{self.cfg.variant} on {self.cfg.scenario}, seed {self.cfg.seed}")
         except Exception as e:  # a plotting problem must never stop a training run
             print(f"warning: learning-curve PNG not written: {e}")
+
+    def run_name(self) -> str:
+        """The run's folder and its parent (``reward/yours``, ``agent/d3rqn_s0``): what
+        names the run in its learning curve's title."""
+        return "/".join(self.out.resolve().parts[-2:])
 
     # -- files ---------------------------------------------------------------------------
     def save_model(self, path, extra: dict | None = None) -> Path:
