@@ -14,9 +14,9 @@ The conv stack is the paper's Table 1 scaled to our 32x104 depth maps (the paper
     paper  128x416x1 -conv 8x8 s4 (4)-> 31x103 -conv 4x4 s2 (8)-> 14x50 -conv 3x3 s2 (8)-> 6x24
     ours    32x104xC -conv 4x4 s2 (4)-> 15x51  -conv 4x4 s2 (8)->  6x24 -conv 3x3 s1 (8)-> 4x22
 
-The first layer's kernel and stride are halved (the image is 4x smaller, so a 4x4
-window at stride 2 covers the same field of view, 1/26 of the width, as the paper's
-8x8 at stride 4); the second layer is kept; after it our map is already the paper's
+The first layer's kernel and stride are halved (on an image a quarter as wide a 4x4
+window spans 1/26 of the width, twice the paper's 8 of 416 pixels, 1/52); the second
+layer is kept; after it our map is already the paper's
 6x24 after three layers, so the third layer keeps the paper's 3x3 kernel with stride 1.
 All valid (no) padding, ReLU after each conv. That is 8 x 4 x 22 = 704 features (the
 paper's 1152), feeding an LSTM or FC of ``width`` units (default 128).
