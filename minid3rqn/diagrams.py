@@ -221,6 +221,53 @@ def pipeline_parts(seed: int = 0) -> dict:
                      "-> a yaw rate", "text": text, "rgb": rgb[-1], "depth": depth}
 
 
+# -- two real pieces of autograd graph ----------------------------------------------------
+def lstm_step_ops(x, h, c, weight_ih, weight_hh, bias, record: dict | None = None):
+    """One LSTM step written with basic ops, line by line the formulas of
+    ``autograd/lstm.py`` (which computes the same in one fused op with its own backward)::
+
+        z = x W_ih^T + h W_hh^T + b;  i, f, g, o = s(z_i), s(z_f), tanh(z_g), s(z_o)
+        c' = f c + i g;  h' = o tanh(c')
+
+    ``record``: a dict that receives the intermediate tensors by name (z, i, f, g, o, c').
+    """
+    hidden = c.shape[-1]
+    z = x @ weight_ih.T + h @ weight_hh.T + bias
+    i = ag.sigmoid(z[:, :hidden])
+    f = ag.sigmoid(z[:, hidden:2 * hidden])
+    g = ag.tanh(z[:, 2 * hidden:3 * hidden])
+    o = ag.sigmoid(z[:, 3 * hidden:])
+    c_new = f * c + i * g
+    if record is not None:
+        record.update({"z": z, "i": i, "f": f, "g": g, "o": o, "c'": c_new})
+    return o * ag.tanh(c_new), c_new
+
+
+def lstm_step_graph(config=None):
+    """(h', names): one step of the shipped D3RQN's LSTM on its conv features, composed of
+    basic ops so that the graph shows each formula; the weights are the net's own."""
+    from .nets.qnet import QNet
+    net = QNet(config or shipped_qnet_config(), rng=0)
+    x = ag.Tensor(np.zeros((1, net.n_features), np.float32))
+    h, c = net.core.initial_state(1)
+    names = {"x (conv features)": x, "h": h, "c": c,
+             **{f"core.{k}": p for k, p in net.core.named_parameters()}}
+    h_new, _ = lstm_step_ops(x, h, c, net.core.weight_ih, net.core.weight_hh, net.core.bias,
+                             record=names)
+    names["h'"] = h_new
+    return h_new, names
+
+
+def dueling_head_graph(config=None):
+    """(Q, names): the shipped D3RQN's dueling head ``QNet.head`` on one LSTM output z."""
+    from .nets.qnet import QNet
+    net = QNet(config or shipped_qnet_config(), rng=0)
+    z = ag.Tensor(np.zeros((1, net.config.width), np.float32))
+    names = {"z (LSTM output)": z, **{k: p for k, p in net.named_parameters()
+                                      if k.startswith(("value", "advantage"))}}
+    return net.head(z), names
+
+
 # -- drawing ----------------------------------------------------------------------------
 INK, BOX, EDGE, NOTE = (20, 20, 20), (232, 240, 252), (60, 90, 150), (90, 90, 90)
 FILL = {"conv": (232, 240, 252), "LSTM": (252, 236, 220), "linear": (236, 248, 232)}
@@ -366,6 +413,82 @@ def pipeline_image(parts: dict) -> Image.Image:
     return im
 
 
+GRAPH_FILL = {"op": (232, 240, 252), "leaf": (253, 227, 200), "constant": (238, 238, 238)}
+
+
+def graph_image(nodes, title: str = "", box_w: int = 128, box_h: int = 40,
+                gap_x: int = 14, gap_y: int = 30) -> Image.Image:
+    """A picture of an autograd graph (``autograd.graph``'s nodes): inputs at the top,
+    each op one row below its lowest parent; ops blue, inputs that need a gradient
+    orange, the others grey; each box gives the op (or input) and its output's shape."""
+    big, small, head = font(12), font(11), font(14)
+    depth = []
+    for n in nodes:
+        depth.append(1 + max((depth[p] for p in n.parents), default=-1))
+    for n in nodes:                                    # an input: just above its first use
+        if not n.parents:
+            uses = [depth[m.index] for m in nodes if n.index in m.parents]
+            depth[n.index] = min(uses, default=1) - 1
+    rows = {}
+    for n, r in zip(nodes, depth):
+        rows.setdefault(r, []).append(n)
+    widest = max(len(r) for r in rows.values())
+    width = max(widest * (box_w + gap_x) + gap_x, 420)
+    top = 34 if title else 10
+    legend = 22
+    im = Image.new("RGB", (width, top + len(rows) * (box_h + gap_y) + legend), "white")
+    d = ImageDraw.Draw(im)
+    if title:
+        d.text((10, 8), title, fill=INK, font=head)
+    where = {}
+    for r, row in sorted(rows.items()):
+        span = len(row) * (box_w + gap_x) - gap_x
+        x = (width - span) / 2
+        y = top + r * (box_h + gap_y)
+        for n in row:
+            where[n.index] = (x, y)
+            x += box_w + gap_x
+    row_of = {n.index: r for n, r in zip(nodes, depth)}
+    line = (120, 140, 180)
+    for n in nodes:                                    # edges first, under the boxes
+        xb, yb = where[n.index]
+        for k, p in enumerate(n.parents):
+            xa, ya = where[p]
+            start = (xa + box_w / 2, ya + box_h)
+            end = (xb + box_w / 2 + (k - (len(n.parents) - 1) / 2) * 10, yb - 1)
+            between = [where[m.index][0] for m in nodes
+                       if row_of[p] < row_of[m.index] < row_of[n.index]]
+            if between:                # past the rows in between, round their boxes
+                left, right = min(between) - gap_x / 2, max(between) + box_w + gap_x / 2
+                side = left if start[0] + end[0] < left + right else right
+                path = [start, (start[0], ya + box_h + gap_y / 2),
+                        (side, ya + box_h + gap_y / 2), (side, yb - gap_y / 2),
+                        (end[0], yb - gap_y / 2)]
+                d.line(path, fill=line, width=1)
+                start = path[-1]
+            arrow(d, start, end, colour=line, width=1)
+    for n in nodes:
+        x, y = where[n.index]
+        d.rounded_rectangle((x, y, x + box_w, y + box_h), radius=5, fill=GRAPH_FILL[n.kind],
+                            outline=EDGE, width=1)
+        name = " = ".join(filter(None, (n.name, n.op))) if n.kind == "op" else n.title()
+        lines = [f"#{n.index} {name}", str(n.shape)]
+        for k, (text, f) in enumerate(zip(lines, (big, small))):
+            while d.textlength(text, font=f) > box_w - 6 and len(text) > 4:
+                text = text[:-2] + "~"
+            w = d.textlength(text, font=f)
+            d.text((x + box_w / 2 - w / 2, y + 5 + 17 * k), text, fill=INK if k == 0 else NOTE,
+                   font=f)
+    y = im.height - legend + 4
+    x = 10
+    for kind, text in (("op", "op"), ("leaf", "input that needs a gradient"),
+                       ("constant", "input that needs none")):
+        d.rectangle((x, y, x + 14, y + 12), fill=GRAPH_FILL[kind], outline=EDGE)
+        d.text((x + 19, y), text, fill=NOTE, font=small)
+        x += 28 + d.textlength(text, font=small)
+    return im
+
+
 def save(im: Image.Image, path, text: dict) -> Path:
     """Write ``im`` with its figure's text in the PNG text chunk ``minid3rqn``."""
     info = PngInfo()
@@ -389,7 +512,18 @@ def figures() -> dict:
     q, disp, pose = qnet_layers(), dispnet_layers(), posenet_layers()
     pipe = pipeline_parts()
     pipe_text = {"title": pipe["title"], "text": pipe["text"]}
-    return {"net_qnet.png": (q, lambda: chain_image(q)),
+    graphs = {}
+    for name, build, title in (
+            ("graph_lstm_step.png", lstm_step_graph,
+             "One LSTM step of the D3RQN, written with basic ops: h' = o tanh(f c + i g)"),
+            ("graph_dueling_head.png", dueling_head_graph,
+             "The D3RQN's dueling head: Q = V(z) + A(z) - mean_a A(z)")):
+        root, names = build()
+        nodes = ag.graph(root, names)
+        graphs[name] = ({"title": title, "graph": ag.graph_text(root, names)},
+                        lambda nodes=nodes, title=title: graph_image(nodes, title))
+    return {**graphs,
+            "net_qnet.png": (q, lambda: chain_image(q)),
             "net_dispnet.png": (disp, lambda: dispnet_image(disp)),
             "net_posenet.png": (pose, lambda: chain_image(pose)),
             "pipeline.png": (pipe_text, lambda: pipeline_image(pipe))}

@@ -11,6 +11,7 @@ from .elementwise import sqrt, abs, elu, sigmoid, tanh, clip, where, maximum, mi
 from .reduce import log_softmax
 from .shape import concat, stack, pad, crop, flatten
 from .gradcheck import gradcheck, GradcheckError
+from .graph import graph, graph_text, graph_dot
 from .lstm import lstm
 from .sample import bilinear_sample
 from .losses import mse_loss, huber_loss
