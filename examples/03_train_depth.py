@@ -1,26 +1,30 @@
-"""Depth from raw frames alone: why view synthesis works, then watch DispNet learn it.
+# %% [markdown]
+# # 03. Depth from raw frames alone: why view synthesis works, then watch DispNet learn it
+#
+# 0. Why it works (``warp.png``, three rows, each target | second image | |difference|):
+#    the previous frame warped into the target with the TRUE depth and motion
+#    (p_s ~ K T_{t->s} D_t(p_t) K^-1 p_t, the paper's Eq. 3) matches it, except where the
+#    source did not see the target's pixels; unwarped it does not (the camera moved);
+#    warped with the depth halved it does not either. The only depth that makes the
+#    first error small is the right one: that is what trains DispNet.
+# 1. A scripted pilot flies the basic world; every 0.4 s the camera keeps a frame (the
+#    ground-truth depth is stored beside it, for the scorecard only).
+# 2. DispNet + PoseNet train on triplets (previous, target, next): warp the neighbours
+#    into the target with the predicted depth and motion, compare the pixels.
+# 3. Before training and every few hundred iterations the example scores the depth against
+#    ground truth (abs rel, delta < 1.25) and adds a row RGB | predicted | GT to
+#    ``emerging.png``. Most of the gain comes in the first 200 iterations (abs rel about
+#    0.95 -> 0.5, delta 0.21 -> 0.34, seed 0): the noise becomes the near floor and the
+#    wall on the left. After that, at this budget, scores and picture move back and forth
+#    by a little (the far end of the view starts to show around 600 iterations).
+#
+#     python examples/03_train_depth.py [--out runs/examples/03_train_depth]
+#     python examples/03_train_depth.py --smoke    # seconds: tiny run, checks it works
 
-0. Why it works (``warp.png``, three rows, each target | second image | |difference|):
-   the previous frame warped into the target with the TRUE depth and motion
-   (p_s ~ K T_{t->s} D_t(p_t) K^-1 p_t, the paper's Eq. 3) matches it, except where the
-   source did not see the target's pixels; unwarped it does not (the camera moved);
-   warped with the depth halved it does not either. The only depth that makes the
-   first error small is the right one: that is what trains DispNet.
-1. A scripted pilot flies the basic world; every 0.4 s the camera keeps a frame (the
-   ground-truth depth is stored beside it, for the scorecard only).
-2. DispNet + PoseNet train on triplets (previous, target, next): warp the neighbours
-   into the target with the predicted depth and motion, compare the pixels.
-3. Before training and every few hundred iterations the example scores the depth against
-   ground truth (abs rel, delta < 1.25) and adds a row RGB | predicted | GT to
-   ``emerging.png``. Most of the gain comes in the first 200 iterations (abs rel about
-   0.95 -> 0.5, delta 0.21 -> 0.34, seed 0): the noise becomes the near floor and the
-   wall on the left. After that, at this budget, scores and picture move back and forth
-   by a little (the far end of the view starts to show around 600 iterations).
-
-    python examples/03_train_depth.py [--out runs/examples/03_train_depth]
-    python examples/03_train_depth.py --smoke    # seconds: tiny run, checks it works
-"""
+# %%
+"""Depth from raw frames alone: why view synthesis works, then watch DispNet learn it."""
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -34,10 +38,12 @@ from minid3rqn.world import (Camera, integrate_arc, inverse_warp_numpy, make_sce
                              relative_transform, render_batch, sample_start_pose)
 
 
+# %%
 def as_sequence(data) -> Sequence:
     return Sequence(data["rgb"], data["flight"], data["K"], data["depth"], data["pose"])
 
 
+# %%
 def warp_rows(seed: int = 0, height: int = 64, width: int = 208):
     """[(name, target, second image, |error| (H, W), valid (H, W))] for the previous frame
     warped with the true depth and motion, not warped, and warped with half the depth."""
@@ -57,6 +63,7 @@ def warp_rows(seed: int = 0, height: int = 64, width: int = 208):
     return rows
 
 
+# %%
 def warp_picture(path, seed: int = 0, height: int = 128) -> Path:
     """``warp_rows`` as a picture; the mean |error| of each row is printed on it."""
     lines = []
@@ -74,6 +81,7 @@ def warp_picture(path, seed: int = 0, height: int = 128) -> Path:
     return write_image(path, np.concatenate([x for line in lines for x in (line, gap)][:-1]))
 
 
+# %%
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--smoke", action="store_true", help="a tiny run, for the tests")
@@ -81,7 +89,7 @@ def main() -> None:
     parser.add_argument("--out", default="runs/examples/03_train_depth",
                         help="folder for the pictures")
     parser.add_argument("--iterations", type=int, default=800, help="training iterations")
-    args = parser.parse_args()
+    args = parser.parse_args([] if "ipykernel" in sys.modules else None)
     out = Path(args.out)
     print("0. the previous frame warped into the target (GT depth and motion):")
     print(f"   -> {warp_picture(out / 'warp.png', args.seed)}")
@@ -117,5 +125,6 @@ def main() -> None:
     print(f"3. one held-out frame, a row per report (RGB | predicted | GT): {path}")
 
 
+# %%
 if __name__ == "__main__":
     main()

@@ -1,60 +1,66 @@
-"""Where single-frame depth fails: a wall close ahead, and why.
+# %% [markdown]
+# # 06: Where single-frame depth fails: a wall close ahead, and why
+#
+# Every DispNet we trained sees an obstacle under 2 m straight ahead about twice too far
+# (docs/depth.md section 7). This example finds out why, with the shipped DispNet and
+# fresh `basic` worlds flown by a late-turning pilot, in four steps:
+#
+# 1. Frames whose middle columns show one surface (depth spread under 30 %): the
+#    DispNet's depth there (its own metric scale) against the truth, by distance.
+#    Beyond about 3 m it follows the truth; closer, it says about 2.8 m whatever the
+#    truth is.
+# 2. Is it reading texture size? Re-render those frames with the obstacle textures k
+#    times larger (a wall at Z with texture k looks much like one at Z / k). The answer
+#    hardly moves: no.
+# 3. Is it reading where the wall meets the floor (the cue van Dijk and de Croon, ICCV
+#    2019, found in KITTI networks)? At altitude h the floor at image row v lies at
+#    h / y_n(v); the lowest row sees the floor at about 3.35 m, so a nearer wall covers the
+#    whole column and its foot is out of view. Lower the camera to 0.5 m (the network
+#    still assumes 1 m): the foot of walls down to 1.6 m comes back into view, and for
+#    those walls the answer moves with the truth again, about twice too far (1 / 0.5,
+#    the altitude ratio). Closer than 1.6 m it is stuck again.
+# 4. Does view synthesis know the right answer? The photometric error of those near
+#    pixels, warped from the previous and next frames with the GT pose and their GT
+#    depth times alpha, is lowest at alpha = 1. The training signal is there; a single
+#    frame does not carry the cue the network would need to follow it.
+#
+#     python examples/06_wall_ahead.py [--smoke] [--worlds 80] [--model M] \
+#         [--out runs/examples/06_wall_ahead]
+#
+# The frames are filmed with the world's default camera, the one every shipped DispNet
+# was trained with: its horizon in the middle row. A camera with the horizon raised
+# (`Camera(horizon_row=4)`) sees the floor from 1.93 m ahead instead of 3.35 m, and a
+# DispNet trained on its frames answers step 1 for walls down to about 2 m.
+#
+# Writes wall_ahead.png: RGB | predicted | GT depth (metres on one fixed colour scale,
+# red 0.5 m, blue 10 m) for some near-wall frames. Ground truth is used only to look;
+# nothing is trained.
 
-Every DispNet we trained sees an obstacle under 2 m straight ahead about twice too far
-(docs/depth.md section 7). This example finds out why, with the shipped DispNet and
-fresh `basic` worlds flown by a late-turning pilot, in four steps:
-
-1. Frames whose middle columns show one surface (depth spread under 30 %): the
-   DispNet's depth there (its own metric scale) against the truth, by distance.
-   Beyond about 3 m it follows the truth; closer, it says about 2.8 m whatever the
-   truth is.
-2. Is it reading texture size? Re-render those frames with the obstacle textures k
-   times larger (a wall at Z with texture k looks much like one at Z / k). The answer
-   hardly moves: no.
-3. Is it reading where the wall meets the floor (the cue van Dijk and de Croon, ICCV
-   2019, found in KITTI networks)? At altitude h the floor at image row v lies at
-   h / y_n(v); the lowest row sees the floor at about 3.35 m, so a nearer wall covers the
-   whole column and its foot is out of view. Lower the camera to 0.5 m (the network
-   still assumes 1 m): the foot of walls down to 1.6 m comes back into view, and for
-   those walls the answer moves with the truth again, about twice too far (1 / 0.5,
-   the altitude ratio). Closer than 1.6 m it is stuck again.
-4. Does view synthesis know the right answer? The photometric error of those near
-   pixels, warped from the previous and next frames with the GT pose and their GT
-   depth times alpha, is lowest at alpha = 1. The training signal is there; a single
-   frame does not carry the cue the network would need to follow it.
-
-    python examples/06_wall_ahead.py [--smoke] [--worlds 80] [--model M] \\
-        [--out runs/examples/06_wall_ahead]
-
-The frames are filmed with the world's default camera, the one every shipped DispNet
-was trained with: its horizon in the middle row. A camera with the horizon raised
-(`Camera(horizon_row=4)`) sees the floor from 1.93 m ahead instead of 3.35 m, and a
-DispNet trained on its frames answers step 1 for walls down to about 2 m.
-
-Writes wall_ahead.png: RGB | predicted | GT depth (metres on one fixed colour scale,
-red 0.5 m, blue 10 m) for some near-wall frames. Ground truth is used only to look;
-nothing is trained.
-"""
+# %%
+"""Where single-frame depth fails: a wall close ahead, and why."""
 import argparse
 import copy
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from minid3rqn.depth.data import fly
 from minid3rqn.depth.evaluate import DepthEstimator
+from minid3rqn.io import MODELS
 from minid3rqn.io import write_image
 from minid3rqn.viz import depth_to_rgb
 from minid3rqn.world import Camera, make_scene, render_batch
 from minid3rqn.world import textures as tx
 from minid3rqn.world.geometry import inverse_warp_numpy, relative_transform
 
-MODEL = Path(__file__).resolve().parents[1] / "minid3rqn" / "models" / "depth_basic.npz"
+MODEL = MODELS / "depth_basic.npz"
 MIDDLE = slice(46, 58)          # the 12 middle columns of 104: straight ahead
 BINS = (0.5, 1.0, 1.5, 2.0, 2.5, 3.5, 6.0)
 ALPHAS = (0.5, 0.7, 0.85, 1.0, 1.2, 1.5, 2.0, 2.5)
 
 
+# %%
 def flights(n_worlds: int, seed: int):
     """(scene, poses) of one late-turning flight in each of n fresh basic worlds (world
     seeds 5000 + k: not used in training)."""
@@ -64,6 +70,7 @@ def flights(n_worlds: int, seed: int):
         yield scene, fly(scene, 50, rng, late=0.5)
 
 
+# %%
 def variant(scene, texture_scale: float = 1.0, altitude: float | None = None):
     """A copy of ``scene`` with the obstacle textures ``texture_scale`` times larger (the
     floor and the ceiling, appearance rows 0 and 1, are left alone) and the camera at
@@ -78,6 +85,7 @@ def variant(scene, texture_scale: float = 1.0, altitude: float | None = None):
     return out
 
 
+# %%
 def one_surface_ahead(depth):
     """Frames whose middle columns show one surface: (F,) bool, and its median depth."""
     mid = depth[:, :, MIDDLE]
@@ -85,6 +93,7 @@ def one_surface_ahead(depth):
     return (hi < 1.3 * lo) & (hi < BINS[-1]), np.median(mid, axis=(1, 2))
 
 
+# %%
 def by_distance(est, worlds, cam, texture_scale=1.0, altitude=None):
     """Median GT and predicted depth of the middle columns for every one-surface frame."""
     gt, pred, frames = [], [], []
@@ -99,6 +108,7 @@ def by_distance(est, worlds, cam, texture_scale=1.0, altitude=None):
     return np.concatenate(gt), np.concatenate(pred), frames
 
 
+# %%
 def print_bins(gt, pred, indent="     "):
     for lo, hi in zip(BINS[:-1], BINS[1:]):
         m = (gt >= lo) & (gt < hi)
@@ -107,6 +117,7 @@ def print_bins(gt, pred, indent="     "):
                   f"{np.median(pred[m]):4.2f} m, {np.median(pred[m] / gt[m]):4.2f} x the truth")
 
 
+# %%
 def photometric_curve(worlds, cam):
     """Mean L1 photometric error (min over the previous and next frame, as training
     uses) of the pixels under 2 m in the middle quarter of the view, when their GT depth
@@ -135,6 +146,7 @@ def photometric_curve(worlds, cam):
     return total / np.maximum(count, 1), int(count[ALPHAS.index(1.0)])
 
 
+# %%
 def picture(frames, path, n=6):
     """RGB | predicted | GT for the n nearest one-surface frames, fixed metric colours."""
     rgb = np.concatenate([f[0] for f in frames])
@@ -149,6 +161,7 @@ def picture(frames, path, n=6):
     return write_image(path, img.repeat(3, 0).repeat(3, 1))
 
 
+# %%
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--smoke", action="store_true", help="a few worlds (seconds)")
@@ -156,7 +169,7 @@ def main():
     p.add_argument("--seed", type=int, default=0, help="the pilot's seed")
     p.add_argument("--model", default=str(MODEL), help="the DispNet .npz")
     p.add_argument("--out", default="runs/examples/06_wall_ahead", help="folder for the picture")
-    args = p.parse_args()
+    args = p.parse_args([] if "ipykernel" in sys.modules else None)
     est = DepthEstimator.load(args.model)
     worlds = list(flights(6 if args.smoke else args.worlds, args.seed))
     cam, altitude = Camera(), worlds[0][0].altitude
@@ -193,5 +206,6 @@ def main():
     print(f"\npicture: {path}")
 
 
+# %%
 if __name__ == "__main__":
     main()

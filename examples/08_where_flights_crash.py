@@ -1,45 +1,50 @@
-"""Where do the flights that fail crash, and into what?
+# %% [markdown]
+# # 08. Where do the flights that fail crash, and into what?
+#
+# A success rate says how often a pilot fails, not why. This example flies a pilot over
+# the usual test flights (the same worlds and start poses as ``evaluate``) and, for every
+# collision, notes three facts:
+#
+#     what was hit      a round obstacle (pillar), a polygon (box, building) or a wall
+#                       (world.distance.KINDS: the kind nearest to the drone where its
+#                       clearance first fell below 0.5 m along the step's arc)
+#     where it was      the bearing of the point hit, seen from the pose the last action
+#                       was chosen at: inside the camera's view (|bearing| <= 45 degrees)
+#                       or already outside it
+#     the last action   turning toward the point hit, away from it, or straight
+#
+# A pilot that flies into what it sees straight ahead needs better eyes; one that turns
+# into a pillar it has just passed (outside the view) needs memory, or a habit of not
+# turning toward what it passed. The pilot is a Q-net .npz, several joined by '+' (an
+# ensemble), or a baseline (straight, random, reactive, oracle).
+#
+#     python examples/08_where_flights_crash.py [--smoke] [--policy M.npz] \
+#         [--scenarios basic channel intersections corners] [--flights 1000] \
+#         [--seed 12345] [--depth gt|pred]
+#
+# With ``--depth pred`` each world is seen through its shipped DispNet
+# (``minid3rqn/models/depth_<scenario>.npz``). Nothing is trained.
 
-A success rate says how often a pilot fails, not why. This example flies a pilot over
-the usual test flights (the same worlds and start poses as ``evaluate``) and, for every
-collision, notes three facts:
-
-    what was hit      a round obstacle (pillar), a polygon (box, building) or a wall
-                      (world.distance.KINDS: the kind nearest to the drone where its
-                      clearance first fell below 0.5 m along the step's arc)
-    where it was      the bearing of the point hit, seen from the pose the last action
-                      was chosen at: inside the camera's view (|bearing| <= 45 degrees)
-                      or already outside it
-    the last action   turning toward the point hit, away from it, or straight
-
-A pilot that flies into what it sees straight ahead needs better eyes; one that turns
-into a pillar it has just passed (outside the view) needs memory, or a habit of not
-turning toward what it passed. The pilot is a Q-net .npz, several joined by '+' (an
-ensemble), or a baseline (straight, random, reactive, oracle).
-
-    python examples/08_where_flights_crash.py [--smoke] [--policy M.npz] \\
-        [--scenarios basic channel intersections corners] [--flights 1000] \\
-        [--seed 12345] [--depth gt|pred]
-
-With ``--depth pred`` each world is seen through its shipped DispNet
-(``minid3rqn/models/depth_<scenario>.npz``). Nothing is trained.
-"""
+# %%
+"""Where do the flights that fail crash, and into what?"""
 import argparse
+import sys
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from minid3rqn.rl.models import actions_and_camera, load_depth_estimator, load_policy
+from minid3rqn.io import MODELS
 from minid3rqn.rl.evaluate import evaluate_policy
+from minid3rqn.rl.models import actions_and_camera, load_depth_estimator, load_policy
 from minid3rqn.world import DroneEnv
 from minid3rqn.world.distance import KINDS, nearest_distance_batch, nearest_distance_by_kind
 from minid3rqn.world.stepper import action_arcs
 
-MODELS = Path(__file__).resolve().parents[1] / "minid3rqn" / "models"
 HALF_VIEW = 45.0        # degrees: half the camera's horizontal field of view
 
 
+# %%
 class CrashLog(DroneEnv):
     """The env that appends, for each collision, (kind, bearing in degrees, yaw rate of
     the last action) to ``log``. Worlds, poses and collisions are ``DroneEnv``'s own."""
@@ -64,6 +69,7 @@ class CrashLog(DroneEnv):
         return res
 
 
+# %%
 def what_was_hit(batch, chosen_at, ended_at, eps=1e-3):
     """Kind index and bearing (degrees, left positive) of the obstacle point nearest to
     ``ended_at`` (n, 3) (where the clearance fell short), seen from ``chosen_at`` (n, 3).
@@ -81,6 +87,7 @@ def what_was_hit(batch, chosen_at, ended_at, eps=1e-3):
     return kind, (bearing + 180.0) % 360.0 - 180.0
 
 
+# %%
 def summarise(crashes: np.ndarray) -> str:
     """One line: crashes by kind, the share out of view, and the share turning toward."""
     if len(crashes) == 0:
@@ -95,6 +102,7 @@ def summarise(crashes: np.ndarray) -> str:
             f"away {((~toward) & (rate != 0)).mean():.0%}")
 
 
+# %%
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--policy", default=str(MODELS / "d3rqn_basic.npz"),
@@ -106,7 +114,7 @@ def main(argv=None):
     ap.add_argument("--depth", choices=["gt", "pred"], default="gt",
                     help="GT depth, or each world's shipped DispNet")
     ap.add_argument("--smoke", action="store_true", help="a few flights in one world")
-    args = ap.parse_args(argv)
+    args = ap.parse_args([] if argv is None and "ipykernel" in sys.modules else argv)
     if args.smoke:
         args.scenarios, args.flights = ["intersections"], 40
 
@@ -126,5 +134,6 @@ def main(argv=None):
         print(f"{res.line()}\n    {summarise(crashes)}", flush=True)
 
 
+# %%
 if __name__ == "__main__":
     main()

@@ -1,38 +1,42 @@
-"""What motion alone says about depth: the plane sweep, next to the DispNet.
+# %% [markdown]
+# # 09. What motion alone says about depth: the plane sweep, next to the DispNet
+#
+# A DispNet reads depth from one frame's appearance. Two frames filmed 0.8 m apart also
+# carry it in their parallax, and a plane sweep reads it out without any learning. For
+# target pixel p and each hypothesis depth d_k (k = 1..D), put the point at depth d_k on
+# p's ray, move it into the previous camera with the known motion and project it there
+# (the warp of the paper's Eq. 3, with the depth map set to d_k):
+#
+#     p'_k = proj(K T_{t->t-1} d_k K^-1 p)
+#     cost_k(p) = |B_t(p) - B_{t-1}(p'_k)|,     B the brightness (mean of R, G, B) / 255
+#
+# At the pixel's true depth both frames see the same surface, so the cost is small there:
+# the depth of the lowest cost is the sweep's answer (``plane_sweep`` below, a few lines
+# of NumPy). This example measures how good that answer is, in fresh `basic` worlds
+# flown by the late-turning pilot, with the true motion between the frames (odometry):
+#
+# 1. For every pixel with a previous frame in its flight: the sweep's answer (the
+#    lowest of D = 12 costs) and the shipped DispNet's depth (its own metric scale),
+#    each scored as the share of pixels within 25 % of the truth, by true distance and
+#    for the outer thirds of the columns (where the parallax is) and the middle third
+#    (the flight direction, where a point hardly moves in the image).
+# 2. A picture: RGB | the sweep's answer | the DispNet's depth | GT depth.
+#
+# At 32x104 pixels and with the world's evenly coloured surfaces the sweep's answer is
+# weak, and weakest straight ahead, where a drone needs it most. One exception: under
+# 2 m straight ahead (a wall close in front, example 06's case) the sweep is right about
+# twice as often as the DispNet (0.41 against 0.22 of the pixels, seed 77), though still
+# wrong more often than right.
+#
+#     python examples/09_plane_sweep.py [--smoke] [--frames 400] [--seed 77] \
+#         [--out runs/examples/09_plane_sweep]
+#
+# Ground truth is used only to score; nothing is trained.
 
-A DispNet reads depth from one frame's appearance. Two frames filmed 0.8 m apart also
-carry it in their parallax, and a plane sweep reads it out without any learning. For
-target pixel p and each hypothesis depth d_k (k = 1..D), put the point at depth d_k on
-p's ray, move it into the previous camera with the known motion and project it there
-(the warp of the paper's Eq. 3, with the depth map set to d_k):
-
-    p'_k = proj(K T_{t->t-1} d_k K^-1 p)
-    cost_k(p) = |B_t(p) - B_{t-1}(p'_k)|,     B the brightness (mean of R, G, B) / 255
-
-At the pixel's true depth both frames see the same surface, so the cost is small there:
-the depth of the lowest cost is the sweep's answer (``plane_sweep`` below, a few lines
-of NumPy). This example measures how good that answer is, in fresh `basic` worlds
-flown by the late-turning pilot, with the true motion between the frames (odometry):
-
-1. For every pixel with a previous frame in its flight: the sweep's answer (the
-   lowest of D = 12 costs) and the shipped DispNet's depth (its own metric scale),
-   each scored as the share of pixels within 25 % of the truth, by true distance and
-   for the outer thirds of the columns (where the parallax is) and the middle third
-   (the flight direction, where a point hardly moves in the image).
-2. A picture: RGB | the sweep's answer | the DispNet's depth | GT depth.
-
-At 32x104 pixels and with the world's evenly coloured surfaces the sweep's answer is
-weak, and weakest straight ahead, where a drone needs it most. One exception: under
-2 m straight ahead (a wall close in front, example 06's case) the sweep is right about
-twice as often as the DispNet (0.41 against 0.22 of the pixels, seed 77), though still
-wrong more often than right.
-
-    python examples/09_plane_sweep.py [--smoke] [--frames 400] [--seed 77] \\
-        [--out runs/examples/09_plane_sweep]
-
-Ground truth is used only to score; nothing is trained.
-"""
+# %%
+"""What motion alone says about depth: the plane sweep, next to the DispNet."""
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -47,12 +51,14 @@ BINS = ((0.5, 2.0), (2.0, 4.0), (4.0, 7.0), (7.0, 12.0))
 WITHIN = np.log(1.25)             # "within 25 %": |ln(answer / truth)| < ln 1.25
 
 
+# %%
 def sweep_depths(n_planes: int, near: float = 0.5, far: float = 12.0) -> np.ndarray:
     """The D hypothesis depths, nearest first, evenly spaced in inverse depth (parallax
     is proportional to 1 / depth, so equal steps in it are equal steps in the image)."""
     return 1.0 / np.linspace(1.0 / near, 1.0 / far, n_planes)
 
 
+# %%
 def plane_sweep(frame, prev, T_to_prev, K, depths) -> np.ndarray:
     """Costs (N, H, W, D) of frames (N, H, W, 3) uint8 against the frames before them,
     T_to_prev (N, 4, 4) = T_{t->t-1}: for each depth d_k, the brightness difference
@@ -66,6 +72,7 @@ def plane_sweep(frame, prev, T_to_prev, K, depths) -> np.ndarray:
     return np.stack(costs, axis=-1)
 
 
+# %%
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=400, help="frames flown (fresh worlds)")
@@ -73,7 +80,7 @@ def main() -> None:
     ap.add_argument("--planes", type=int, default=12, help="depths swept, 0.5-12 m")
     ap.add_argument("--out", default="runs/examples/09_plane_sweep", help="folder for the picture")
     ap.add_argument("--smoke", action="store_true", help="60 frames: a quick check")
-    args = ap.parse_args()
+    args = ap.parse_args([] if "ipykernel" in sys.modules else None)
     frames = 60 if args.smoke else args.frames
 
     data = collect("basic", n_frames=frames, seed=args.seed, late=0.5, progress=False)
@@ -113,5 +120,6 @@ def main() -> None:
     print(f"wrote {out}: RGB | the sweep's answer | DispNet | GT, one frame per row")
 
 
+# %%
 if __name__ == "__main__":
     main()

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
+from PIL.PngImagePlugin import PngInfo
 
 from .io import write_image
 
@@ -215,10 +216,13 @@ def line_plot(series: dict, path=None, size=(520, 300), title: str = "", xlabel:
 
 
 def learning_curve_png(rows, path, title: str = "") -> Path:
-    """Two panels from training-curve rows: episode return, and success rate, vs steps."""
+    """Two panels from training-curve rows: episode return, and success rate, vs steps.
+    The title is drawn and also kept as the PNG's text chunk "Title"."""
     steps = [r["steps"] for r in rows]
     ret = line_plot({"episode return": (steps, [r["return"] for r in rows])},
                     title=title, xlabel="environment steps")
     suc = line_plot({"success rate (training flights)": (steps, [r["success"] for r in rows])},
                     xlabel="environment steps", ylim=(0.0, 1.0))
-    return write_image(path, np.concatenate([ret, suc], axis=0))
+    info = PngInfo()
+    info.add_text("Title", title)
+    return write_image(path, np.concatenate([ret, suc], axis=0), pnginfo=info)

@@ -12,6 +12,7 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 import pytest
 
 from minid3rqn.classroom import EXERCISES, find
@@ -534,6 +535,12 @@ def test_the_papers_setting_is_trained_once_and_reused(tmp_path, monkeypatch):
                                       "    return np.where(collided, -1.0, np.minimum(d, 3.0))\n")
     mine = run_exercise("reward", file=clip, budget="smoke", out=tmp_path, progress=False)
     assert mine["tag"] == "clip-smoke"                # a run is named after its file
+    titles = []                                       # each learning curve names its run
+    for res in (first, mine):
+        with Image.open(Path(res["model"]).parent / "curve.png") as im:
+            titles.append(im.text["Title"])
+    assert titles[0].startswith("baseline/d3rqn-basic-smoke-s0-"), titles
+    assert titles[1].startswith("reward/clip-smoke: d3rqn on basic, seed 0"), titles
 
     def no_training(*args, **kwargs):
         raise AssertionError("the paper's setting was trained a second time")
@@ -567,6 +574,7 @@ def test_the_papers_setting_is_trained_again_after_an_edit_of_the_package(tmp_pa
     said = [line for line in capsys.readouterr().out.split("\n") if "has changed" in line]
     assert len(said) == 1 and str(Path(first["model"]).parent) in said[0], said
     assert again["model"] != first["model"] and Path(again["model"]).is_file()
+
 
 
 def test_source_digest_follows_the_code(tmp_path):

@@ -49,6 +49,40 @@ def test_example_smoke(name, tmp_path):
         warnings.warn(f"examples/{name} --smoke took {seconds:.0f} s (> {SMOKE_SECONDS} s)")
 
 
+# the examples written as notebooks in the cell format (# %% code, # %% [markdown] prose)
+IN_CELLS = [name for name in EXPECTED if name != "02_world_and_camera.py"]
+
+
+def cells(text: str) -> list[tuple[str, list[str]]]:
+    """(kind, lines) of each cell of a file in the percent format: "markdown" or "code"."""
+    out = []
+    for line in text.split("\n"):
+        if line.startswith("# %%"):
+            out.append(("markdown" if "[markdown]" in line else "code", []))
+        elif out:
+            out[-1][1].append(line)
+    return out
+
+
+@pytest.mark.parametrize("name", IN_CELLS)
+def test_example_is_a_notebook_in_cells(name):
+    """Jupyter (jupytext), VS Code and PyCharm open the file as a notebook: it starts with
+    a markdown cell (the prose, as comment lines), its code is in code cells, and nothing
+    in it needs to be run as a script (no ``__file__``; a kernel's own command-line
+    arguments are not parsed as the example's)."""
+    text = (EXAMPLES / name).read_text(encoding="utf-8")
+    assert text.startswith("# %% [markdown]\n# # "), f"{name}: no markdown title cell first"
+    found = cells(text)
+    assert sum(kind == "code" for kind, _ in found) >= 2, name
+    for kind, lines in found:
+        if kind == "markdown":
+            assert all(not line or line.startswith("#") for line in lines), name
+    assert "__file__" not in text, f"{name}: __file__ is not defined in a notebook"
+    if ".parse_args(" in text:
+        assert '"ipykernel" in sys.modules' in text, f"{name}: a notebook's argv is parsed"
+    compile(text, name, "exec")
+
+
 def load_example(name: str):
     """An example script as a module (its main() is not run)."""
     spec = importlib.util.spec_from_file_location(f"example_{name[:2]}", EXAMPLES / name)
