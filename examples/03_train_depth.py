@@ -13,10 +13,12 @@
 #    into the target with the predicted depth and motion, compare the pixels.
 # 3. Before training and every few hundred iterations the example scores the depth against
 #    ground truth (abs rel, delta < 1.25) and adds a row RGB | predicted | GT to
-#    ``emerging.png``. Most of the gain comes in the first 200 iterations (abs rel about
-#    0.95 -> 0.5, delta 0.21 -> 0.34, seed 0): the noise becomes the near floor and the
-#    wall on the left. After that, at this budget, scores and picture move back and forth
-#    by a little (the far end of the view starts to show around 600 iterations).
+#    ``emerging.png``. The heads start every pixel at 10 m (depth.md, section 5). Most of
+#    the gain comes in the first 200 iterations (abs rel about 0.89 -> 0.55, delta
+#    0.21 -> 0.35, seed 0): the noise becomes an even depth with the near floor under
+#    it. After that, at this budget, the scores move back and forth by a little (abs rel
+#    0.50, delta 0.36 at 800 iterations), and the wall on the left shows from about 600
+#    iterations.
 #
 #     python examples/03_train_depth.py [--out runs/examples/03_train_depth]
 #     python examples/03_train_depth.py --smoke    # seconds: tiny run, checks it works
