@@ -1,5 +1,5 @@
 # %% [markdown]
-# # 01. A tour of the autograd engine
+# # 01: A tour of the autograd engine
 #
 # Four steps, in seconds:
 #

@@ -17,6 +17,7 @@
 
 # %%
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -100,7 +101,7 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0, help="world seed")
     parser.add_argument("--steps", type=int, default=12, help="steps the oracle flies")
     parser.add_argument("--smoke", action="store_true", help="3 steps, a quick check")
-    args = parser.parse_args(argv)
+    args = parser.parse_args([] if argv is None and "ipykernel" in sys.modules else argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     steps = 3 if args.smoke else args.steps

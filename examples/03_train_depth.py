@@ -1,5 +1,5 @@
 # %% [markdown]
-# # 03. Depth from raw frames alone: why view synthesis works, then watch DispNet learn it
+# # 03: Depth from raw frames alone: why view synthesis works, then watch DispNet learn it
 #
 # 0. Why it works (``warp.png``, three rows, each target | second image | |difference|):
 #    the previous frame warped into the target with the TRUE depth and motion

@@ -1,5 +1,5 @@
 # %% [markdown]
-# # 04. Train the paper's D3RQN (dueling double deep recurrent Q-network) on GT depth
+# # 04: Train the paper's D3RQN (dueling double deep recurrent Q-network) on GT depth
 #
 # The loop is minid3rqn/rl/train.py: 16 flights stepped together, an episodic replay
 # sampled as 5-step windows, double-Q targets, a target net refreshed every 300 updates.

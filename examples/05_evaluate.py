@@ -1,5 +1,5 @@
 # %% [markdown]
-# # 05. Success rates with 95% intervals: Straight, Random, Reactive and a Q-net
+# # 05: Success rates with 95% intervals: Straight, Random, Reactive and a Q-net
 #
 # Every policy flies the same fresh test worlds (seeds disjoint from training), all
 # flights of a chunk stepped together. The paper's protocol is 2000 flights of 50 steps:

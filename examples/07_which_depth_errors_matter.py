@@ -1,5 +1,5 @@
 # %% [markdown]
-# # 07. Which of the DispNet's errors cost the Q-net its flights?
+# # 07: Which of the DispNet's errors cost the Q-net its flights?
 #
 # A D3RQN trained on ground-truth (GT) depth flies worse on the DispNet's depth: the
 # paper-recipe parent 0.949 on GT depth against 0.835 on the DispNet's (docs/beyond.md).

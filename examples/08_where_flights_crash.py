@@ -1,5 +1,5 @@
 # %% [markdown]
-# # 08. Where do the flights that fail crash, and into what?
+# # 08: Where do the flights that fail crash, and into what?
 #
 # A success rate says how often a pilot fails, not why. This example flies a pilot over
 # the usual test flights (the same worlds and start poses as ``evaluate``) and, for every

@@ -1,5 +1,5 @@
 # %% [markdown]
-# # 09. What motion alone says about depth: the plane sweep, next to the DispNet
+# # 09: What motion alone says about depth: the plane sweep, next to the DispNet
 #
 # A DispNet reads depth from one frame's appearance. Two frames filmed 0.8 m apart also
 # carry it in their parallax, and a plane sweep reads it out without any learning. For

@@ -141,7 +141,7 @@ def main(argv=None):
     p.add_argument("--seed", type=int, default=0, help="seeds both learners")
     p.add_argument("--out", default="runs/examples/10_sb3_dqn", help="where both land")
     p.add_argument("--smoke", action="store_true", help="a few hundred transitions")
-    args = p.parse_args(argv)
+    args = p.parse_args([] if argv is None and "ipykernel" in sys.modules else argv)
     if args.smoke:
         args.steps, args.flights = 256, 8
     start = min(2_000, args.steps // 4)

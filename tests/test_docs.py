@@ -144,10 +144,9 @@ def named_configs() -> dict:
     from minid3rqn.depth.losses import LossConfig
     from minid3rqn.nets.qnet import QNetConfig
     from minid3rqn.rl.agent import AgentConfig
-    from minid3rqn.rl.flights import FlightsConfig
     by_command = command_configs()
     return {"AgentConfig": AgentConfig, "QNetConfig": QNetConfig, "LossConfig": LossConfig,
-            "FlightsConfig": FlightsConfig, "DistilConfig": by_command["distil"][0],
+            "DistilConfig": by_command["distil"][0],
             "CollectConfig": by_command["collect"][0]}
 
 

@@ -50,7 +50,7 @@ def test_example_smoke(name, tmp_path):
 
 
 # the examples written as notebooks in the cell format (# %% code, # %% [markdown] prose)
-IN_CELLS = [name for name in EXPECTED if name != "02_world_and_camera.py"]
+IN_CELLS = _all_examples()
 
 
 def cells(text: str) -> list[tuple[str, list[str]]]:
