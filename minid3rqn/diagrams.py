@@ -27,6 +27,7 @@ from PIL import Image, ImageDraw, ImageFont
 from PIL.PngImagePlugin import PngInfo
 
 from . import autograd as ag
+from .io import write_image
 from .nets.layers import LSTM, Conv2d, Linear
 from .nets.module import Module
 
@@ -493,10 +494,7 @@ def save(im: Image.Image, path, text: dict) -> Path:
     """Write ``im`` with its figure's text in the PNG text chunk ``minid3rqn``."""
     info = PngInfo()
     info.add_text(TEXT_KEY, json.dumps(text, sort_keys=True))
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    im.save(path, pnginfo=info)
-    return path
+    return write_image(path, im, pnginfo=info)
 
 
 def figure_text(path) -> dict | None:
