@@ -367,7 +367,8 @@ def run_sweep(args) -> int:
     if t.init_model:
         _check_init_model(t)
     try:
-        sweep(cfg, out, args.depth_model, progress=_progress())
+        with hold(out, "--out"):
+            sweep(cfg, out, args.depth_model, progress=_progress())
     except ValueError as e:
         raise UsageError(f"--out: {str(e).removeprefix('resume: ')}") from None
     return 0

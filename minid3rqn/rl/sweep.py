@@ -26,6 +26,7 @@ import numpy as np
 
 from ..config import at_least, command_line, setting, shell_command, validate
 from ..executor import EXECUTORS, get_executor
+from ..io import write_file, write_json
 from .evaluate import TEST_WORLDS, EvalConfig, evaluate_spec
 from .train import TrainConfig
 
@@ -79,7 +80,7 @@ def _evaluation(model: Path, ecfg: EvalConfig, depth_model) -> dict:
             pass                          # unreadable: flown again
     est = load_depth_estimator(depth_model) if ecfg.depth == "pred" else None
     record = evaluate_spec(str(model), ecfg, est, progress=False)[1]
-    kept.write_text(json.dumps({"model_command": made, "record": record}, indent=1))
+    write_json(kept, {"model_command": made, "record": record}, indent=1)
     return record
 
 
@@ -158,10 +159,10 @@ def sweep(cfg: SweepConfig, out: Path, depth_model=None, progress: bool = True) 
                "seconds": round(time.time() - t0, 1), "flights": cfg.flights,
                "eval_seed": cfg.eval_seed, "seeds": cfg.seeds, "runs": records,
                "spread": spread([r["rate"] for r in records])}
-    (out / "results.json").write_text(json.dumps(results, indent=2))
     text = sweep_table(results)
-    (out / "results.md").write_text(text)
-    print("\n" + text)
+    print("\n" + text)                      # said first: a failed write loses no number
+    write_json(out / "results.json", results)
+    write_file(out / "results.md", text)
     return results
 
 
