@@ -191,8 +191,8 @@ def _stopped(status: int, seconds: float | None, cpu_seconds: int) -> str:
 
 def check_in_child(checker, path, label: str | None = None, seconds: float = CHECK_SECONDS,
               cpu_seconds: int = CHECK_CPU_SECONDS) -> Report:
-    """``checker(path)`` (a ``Report``) in a child process of its own session, limited to
-    ``seconds`` of wall-clock time and ``cpu_seconds`` of CPU time (``RLIMIT_CPU``), its
+    """``checker(path)`` (a ``Report``) in a child process started with ``os.setsid``,
+    limited to ``seconds`` of wall-clock time and ``cpu_seconds`` of CPU time (``RLIMIT_CPU``), its
     whole process group killed when it ends: student code that hangs, ignores the
     per-call limit, kills its process or forks cannot stop or outlive the check. The
     report comes back without the module (``report.module`` is None); a child that ends
@@ -201,8 +201,8 @@ def check_in_child(checker, path, label: str | None = None, seconds: float = CHE
 
     What it protects against: mistakes (an endless loop, a crash, an ``exit()``, a stray
     ``os.kill``). What it does not: code written to do harm. The child runs as the same
-    user, with the same files: it can delete or change them, and a process it starts in
-    a session of its own is beyond the group's reach."""
+    user, with the same files: it can delete or change them, and a process it starts
+    that calls ``os.setsid`` itself is beyond the group's reach."""
     if not hasattr(os, "fork"):
         return checker(path)
     read, write = os.pipe()
