@@ -40,6 +40,7 @@ CONV_CASES = [
     (2, 2, 3, 6, 7, 3, 3, 1, 1, False),          # odd sizes, "same" padding
     (1, 2, 3, 7, 9, 3, 2, 2, 1, True),           # non-square kernel, stride 2
     (2, 1, 2, 8, 7, 4, 4, 2, 0, True),           # the QNet's 4x4 stride 2
+    (1, 3, 2, 9, 10, 4, 2, 2, (1, 0), True),     # kernel a multiple of the stride, padded
     (1, 2, 2, 9, 8, 2, 3, 3, (1, 2), True),      # stride 3, padding pair
     (1, 3, 2, 5, 7, 1, 1, (2, 3), 0, True),      # 1x1 kernel, stride pair
     (1, 2, 2, 4, 5, 5, 3, 1, 2, False),          # kernel larger than the image
