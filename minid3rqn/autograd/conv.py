@@ -128,7 +128,7 @@ def conv2d(x, weight, bias=None, stride=1, padding=0) -> Tensor:
     y, xp = kernels.conv2d_forward(x.data, weight, (KH, KW), stride, padding, (OH, OW),
                                    keep_input=graph)
     if bias is not None:
-        y += bias.data
+        kernels.add_channels(y, bias.data)                       # y += b
     out = kernels.nchw_view(y)
     if not graph:
         return Tensor(out)
