@@ -40,8 +40,11 @@ def elu(x, alpha: float = 1.0) -> Tensor:
     y += neg                                        # each entry: itself plus an exact 0
 
     def vjp(g):
-        if alpha == 1:               # y + 1 is 1 or more exactly where y > 0: clip it there
-            return (g * np.minimum(y + 1, 1),)
+        if alpha == 1:               # min(y, 0) + 1: 1 where y > 0, y + 1 elsewhere
+            slope = np.minimum(y, zeros)
+            slope += 1
+            slope *= g
+            return (slope,)
         return (g * np.where(y > 0, 1, y + alpha),)
     return Tensor.from_op(y, (x,), vjp, "elu")
 
