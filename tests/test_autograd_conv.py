@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 from minid3rqn.autograd import Tensor, gradcheck
 from minid3rqn.autograd import kernels
 from minid3rqn.autograd.conv import conv2d, upsample
-from minid3rqn.autograd.engine import relu
+from minid3rqn.autograd.engine import no_grad, relu
 
 pytestmark = pytest.mark.conv
 
@@ -160,6 +160,31 @@ def test_conv2d_input_gradient_is_its_adjoint(case):
     y = rand(*cx.shape, seed=9)
     cx.backward(y)
     np.testing.assert_allclose(np.sum(cx.data * y), np.sum(x.data * x.grad), rtol=1e-10)
+
+
+def test_conv2d_of_an_upsampled_image():
+    """A 3x3 convolution of a nearest-x2-upsampled image runs as four 2x2 convolutions
+    of the small image, in the forward and for dL/dW: the same values and gradients as
+    the plain convolution, with and without a graph."""
+    x, w, b = rand(2, 3, 4, 5), rand(4, 3, 3, 3, seed=1), rand(4, seed=2)
+    up = np.repeat(np.repeat(x, 2, axis=2), 2, axis=3)
+    expected = naive_conv2d(up, w, b, (1, 1), (1, 1))
+    xt, wt = Tensor(x, requires_grad=True), Tensor(w, requires_grad=True)
+    got = conv2d(upsample(xt, 2), wt, b, 1, 1)
+    np.testing.assert_allclose(got.data, expected, rtol=1e-12, atol=1e-12)
+    g = rand(*got.shape, seed=3)
+    got.backward(g)
+    plain_w = Tensor(w, requires_grad=True)
+    plain_x = Tensor(up, requires_grad=True)
+    conv2d(plain_x, plain_w, b, 1, 1).backward(g)
+    np.testing.assert_allclose(wt.grad, plain_w.grad, rtol=1e-10, atol=1e-12)
+    small_grad = plain_x.grad.reshape(2, 3, 4, 2, 5, 2).sum(axis=(3, 5))
+    np.testing.assert_allclose(xt.grad, small_grad, rtol=1e-10, atol=1e-12)
+    with no_grad():
+        np.testing.assert_allclose(conv2d(upsample(x, 2), w, b, 1, 1).data, expected,
+                                   rtol=1e-12, atol=1e-12)
+    gradcheck(lambda x, w: conv2d(upsample(x, 2), w, None, 1, 1),
+              [rand(1, 2, 3, 4), rand(2, 2, 3, 3, seed=4)])
 
 
 # -- upsample ----------------------------------------------------------------------------

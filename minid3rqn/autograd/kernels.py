@@ -3,7 +3,7 @@
 ``conv.py`` states the convolution and its gradient, ``lstm.py`` the LSTM; this module
 makes them fast, as minitorch keeps ``fast_ops`` apart from its tensor math. What is
 computed stays the same; only where it is stored and in what order the work is done
-change (and, under ``no_grad``, the two schedules at the end).
+change (and the three schedules at the end).
 
 Layouts. Images are NCHW-*shaped* for the ops, but a convolution's output lives in
 channels-last (N, H, W, C) memory, which is what the next im2col reads and what a GEMM
@@ -27,16 +27,21 @@ array and its ``version``, which the optimizer, ``load_state_dict`` and ``set_``
   fresh, because the backward pass reads it. Outputs are always fresh arrays. One
   cache per thread, the least recently used plan dropped past ``_MAX_PLANS``.
 
-Two schedules differ in their arithmetic, under ``no_grad`` only (the same products
-summed in another order: equal to float round-off, not to the bit):
+Three schedules differ in their arithmetic (the same products summed in another order:
+equal to float round-off, not to the bit):
 
-- a layer with very few output channels (KH*KW*C_out <= C_in, stride 1: a disparity
-  head) contracts the channels first, ``P[t] = xp @ w[:, :, t]`` for each kernel tap
-  t, and sums the KH*KW shifted tap images, without the KH*KW-times-larger im2col;
+- under ``no_grad``, a layer with very few output channels (KH*KW*C_out <= C_in,
+  stride 1: a disparity head) contracts the channels first, ``P[t] = xp @ w[:, :, t]``
+  for each kernel tap t, and sums the KH*KW shifted tap images, without the
+  KH*KW-times-larger im2col;
 - a 3x3 convolution (stride 1, padding 1) of an array ``upsample`` made by nearest x2
   upsampling (``remember_upsampled``; made read-only so that it stays one) runs as
   four 2x2 convolutions of the small image, one per output phase
-  (``_phase_matrices``): 4/9 of the multiply-adds.
+  (``_phase_matrices``): 4/9 of the multiply-adds, with or without a graph; its
+  weight gradient is taken the same way (``_phase_weight_grad``);
+- the input gradient of a convolution whose kernel is a multiple of its stride (the
+  Q-net's 4x4, stride 2) runs all stride phases in one GEMM
+  (``_transposed_conv_joint``).
 """
 from __future__ import annotations
 
@@ -204,7 +209,7 @@ def _phase_matrices(weight) -> dict:
     return _derived(weight, "phases", make)
 
 
-# -- nearest-upsampled arrays, remembered under no_grad --------------------------------------
+# -- nearest-upsampled arrays, remembered -------------------------------------------------------
 _UPSAMPLED: dict = {}
 
 
@@ -316,10 +321,21 @@ def conv2d_nhwc(xp: np.ndarray, kernel, stride, out_hw, wmat_t: np.ndarray,
     return y
 
 
-def conv_weight_grad(xp: np.ndarray, kernel, stride, g: np.ndarray) -> np.ndarray:
+class UpsampledInput:
+    """What a 3x3 convolution of a nearest-x2-upsampled image keeps for dL/dW: the
+    padded small image ``xs`` (its forward ran as four 2x2 convolutions of it)."""
+
+    def __init__(self, xs: np.ndarray):
+        self.xs = xs
+
+
+def conv_weight_grad(xp, kernel, stride, g: np.ndarray) -> np.ndarray:
     """``cols^T @ G`` = dL/dW as a (KH*KW*C, O) matrix, for ``g`` (N, OH, OW, O)
     channels-last; cols is rebuilt block by block from ``xp`` (cheaper than keeping
-    it: see ``_BLOCK_BYTES``)."""
+    it: see ``_BLOCK_BYTES``), or, for an ``UpsampledInput``, per output phase from the
+    small image (``_phase_weight_grad``)."""
+    if isinstance(xp, UpsampledInput):
+        return _phase_weight_grad(xp.xs, g)
     windows = _windows(xp, kernel, stride, g.shape[1:3])
     K, O = windows[0, 0, 0].size, g.shape[3]
     total = np.zeros((K, O), dtype=xp.dtype)
@@ -327,6 +343,26 @@ def conv_weight_grad(xp: np.ndarray, kernel, stride, g: np.ndarray) -> np.ndarra
         np.copyto(dst, src)
         total += cols.T @ g[index].reshape(len(cols), O)
     return total
+
+
+# small row (or column) each tap of a 3x3 kernel reads in output phase 0 and 1
+_PHASE_TAPS = {0: [0, 1, 1], 1: [0, 0, 1]}
+
+
+def _phase_weight_grad(xs: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """dL/dW of a 3x3 convolution that ran as four 2x2 ones (``_phase_matrices``).
+    Phase (p, q) used the 2x2 kernel whose tap (a, b) is the sum of the 3x3 taps
+    (i, j) reading small row a and column b; the chain rule sends that 2x2 kernel's
+    gradient back to each tap of the sum. Returns the (9C, O) matrix, rows (i, j, c)."""
+    N, Hs, Ws, C = xs.shape
+    H, W, O = Hs - 2, Ws - 2, g.shape[3]
+    dw = np.zeros((3, 3, C, O), dtype=g.dtype)
+    for p in (0, 1):
+        for q in (0, 1):
+            gpq = np.ascontiguousarray(g[:, p::2, q::2])
+            d = conv_weight_grad(xs[:, p:p + H + 1, q:q + W + 1], (2, 2), (1, 1), gpq)
+            dw += d.reshape(2, 2, C, O)[np.ix_(_PHASE_TAPS[p], _PHASE_TAPS[q])]
+    return dw.reshape(9 * C, O)
 
 
 # -- plans: a forward convolution's schedule, built once per input shape --------------------
@@ -404,17 +440,25 @@ def conv2d_forward(x: np.ndarray, weight, kernel, stride, padding, out_hw,
     ``keep_input``, else None (the plan's buffer was used, and will be again)."""
     O = weight.shape[0]
     (KH, KW), (ph, pw) = kernel, padding
+    N, (OH, OW) = x.shape[0], out_hw
+    small = None
+    if kernel == (3, 3) and stride == (1, 1) and padding == (1, 1):
+        small = _upsampled_by_two(x)
     if keep_input:                           # the backward pass keeps this one
+        if small is not None:                            # the padded small image
+            xs = pad_nhwc(small, 1, 1)
+            y = np.empty((N, OH, OW, O), x.dtype)
+            H, W = small.shape[2:]
+            for (p, q), wmat in _phase_matrices(weight).items():
+                y[:, p::2, q::2] = conv2d_nhwc(xs[:, p:p + H + 1, q:q + W + 1], (2, 2),
+                                               (1, 1), (H, W), wmat)
+            return y, UpsampledInput(xs)
         if ph == pw == 0 and channels_last(x):           # nothing to pad or move
             xp = x.transpose(0, 2, 3, 1)
         else:
             xp = pad_nhwc(x, ph, pw)
         return conv2d_nhwc(xp, kernel, stride, out_hw, weight_matrix(weight)), xp
-    N, (OH, OW) = x.shape[0], out_hw
     y = np.empty((N, OH, OW, O), x.dtype)
-    small = None
-    if kernel == (3, 3) and stride == (1, 1) and padding == (1, 1):
-        small = _upsampled_by_two(x)
     if small is not None:
         plan = _plan(small.shape, x.dtype, kernel, stride, padding, out_hw, O, "phases")
         pad_nhwc(small, 1, 1, out=plan.xp)
