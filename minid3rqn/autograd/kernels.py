@@ -435,9 +435,10 @@ def conv2d_forward(x: np.ndarray, weight, kernel, stride, padding, out_hw,
                    keep_input: bool):
     """The forward convolution ``cols @ W^T`` of NCHW-shaped ``x`` (no bias).
 
-    Returns ``(y, xp)``: ``y`` a fresh channels-last (N, OH, OW, O) array; ``xp`` the
-    padded channels-last input, which the backward pass reads: a fresh array if
-    ``keep_input``, else None (the plan's buffer was used, and will be again)."""
+    Returns ``(y, xp)``: ``y`` a fresh channels-last (N, OH, OW, O) array; ``xp`` what
+    dL/dW will read, if ``keep_input``: the padded channels-last input (a fresh array,
+    or ``x`` itself when nothing is padded), or for an upsampled input the
+    ``UpsampledInput``; else None (the plan's buffer was used, and will be again)."""
     O = weight.shape[0]
     (KH, KW), (ph, pw) = kernel, padding
     N, (OH, OW) = x.shape[0], out_hw
@@ -520,12 +521,7 @@ def transposed_conv(g: np.ndarray, weight: np.ndarray, stride, origin, out_hw
                 z[:, r0::sh, q0::sw] = 0
                 continue
             # gp[t] = g[lo_y - ka + 1 + t] (zero outside 0..OH-1); window t..t+ka-1
-            gp = np.zeros((N, ny + ka - 1, nx + kb - 1, O), dtype=g.dtype)
-            u0, v0 = lo_y - ka + 1, lo_x - kb + 1
-            us, ue = max(u0, 0), min(u0 + ny + ka - 1, OH)
-            vs, ve = max(v0, 0), min(v0 + nx + kb - 1, OW)
-            if us < ue and vs < ve:
-                gp[:, us - u0:ue - u0, vs - v0:ve - v0] = g[:, us:ue, vs:ve]
+            gp = _padded_rows(g, lo_y - ka + 1, ny + ka - 1, lo_x - kb + 1, nx + kb - 1)
             flipped = taps[:, :, ::-1, ::-1].transpose(2, 3, 0, 1).reshape(ka * kb * O, C)
             part = conv2d_nhwc(gp, (ka, kb), (1, 1), (ny, nx), flipped)
             if z is None:                                 # stride 1: a single phase
@@ -550,7 +546,8 @@ def _transposed_conv_joint(g, weight, stride, origin, out_hw):
     holds the padded-input pixels (s Y' + a, s X' + b) of every phase (a, b); they read
     the same window of ``g``, so one im2col serves all, against a weight matrix with
     a column per (a, b, c); the result is then interleaved (depth to space) and
-    cropped to the window. Each entry is the same sum as in the per-phase loop."""
+    cropped to the window. Each entry is the same sum of products as in the per-phase
+    loop (BLAS may round it differently: the GEMM is wider)."""
     N, OH, OW, O = g.shape
     _, C, KH, KW = weight.shape
     (sh, sw), (y0, x0), (Hz, Wz) = stride, origin, out_hw
@@ -569,17 +566,16 @@ def _transposed_conv_joint(g, weight, stride, origin, out_hw):
 
 
 # -- nearest upsampling and concatenation, layout-preserving ---------------------------------
-def repeat_nearest(x: np.ndarray, sh: int, sw: int, remember: bool = False) -> np.ndarray:
+def repeat_nearest(x: np.ndarray, sh: int, sw: int) -> np.ndarray:
     """``np.repeat(np.repeat(x, sh, 2), sw, 3)`` for NCHW ``x``, in ``x``'s layout:
-    sh*sw strided copies, output pixel (sh i + a, sw j + b) = x[i, j]. ``remember``:
-    ``remember_upsampled`` (the result is then read-only)."""
+    sh*sw strided copies, output pixel (sh i + a, sw j + b) = x[i, j]. The result is
+    remembered as an upsampling (``remember_upsampled``: it is read-only)."""
     N, C, H, W = x.shape
     y = empty_like_layout((N, C, sh * H, sw * W), x)
     for a in range(sh):
         for b in range(sw):
             y[:, :, a::sh, b::sw] = x
-    if remember:
-        remember_upsampled(y, (sh, sw))
+    remember_upsampled(y, (sh, sw))
     return y
 
 
