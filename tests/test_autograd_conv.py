@@ -163,9 +163,9 @@ def test_conv2d_input_gradient_is_its_adjoint(case):
 
 
 def test_conv2d_of_an_upsampled_image():
-    """A 3x3 convolution of a nearest-x2-upsampled image runs as four 2x2 convolutions
-    of the small image, in the forward and for dL/dW: the same values and gradients as
-    the plain convolution, with and without a graph."""
+    """A 3x3 convolution of a nearest-x2-upsampled image (under no_grad: four 2x2
+    convolutions of the small image) gives the plain convolution's values, and its
+    gradients, with and without a graph."""
     x, w, b = rand(2, 3, 4, 5), rand(4, 3, 3, 3, seed=1), rand(4, seed=2)
     up = np.repeat(np.repeat(x, 2, axis=2), 2, axis=3)
     expected = naive_conv2d(up, w, b, (1, 1), (1, 1))

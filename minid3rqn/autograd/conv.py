@@ -179,7 +179,7 @@ def upsample(x, scale_factor=2, mode: str = "nearest") -> Tensor:
     sh, sw = _int_pair(scale_factor, "scale_factor", op, 1)
     N, C, H, W = x.shape
     if mode == "nearest":
-        y = kernels.repeat_nearest(x.data, sh, sw)
+        y = kernels.repeat_nearest(x.data, sh, sw, remember=not is_grad_enabled())
 
         def vjp(g):
             return (_sum_phases(_sum_phases(g, sw, 3), sh, 2),)

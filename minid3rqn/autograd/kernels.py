@@ -3,7 +3,7 @@
 ``conv.py`` states the convolution and its gradient, ``lstm.py`` the LSTM; this module
 makes them fast, as minitorch keeps ``fast_ops`` apart from its tensor math. What is
 computed stays the same; only where it is stored and in what order the work is done
-change (and the three schedules at the end).
+change (and, under ``no_grad``, the two schedules at the end).
 
 Layouts. Images are NCHW-*shaped* for the ops, but a convolution's output lives in
 channels-last (N, H, W, C) memory, which is what the next im2col reads and what a GEMM
@@ -27,21 +27,17 @@ array and its ``version``, which the optimizer, ``load_state_dict`` and ``set_``
   fresh, because the backward pass reads it. Outputs are always fresh arrays. One
   cache per thread, the least recently used plan dropped past ``_MAX_PLANS``.
 
-Three schedules differ in their arithmetic (the same products summed in another order:
-equal to float round-off, not to the bit):
+Two schedules differ in their arithmetic, under ``no_grad`` only (the same products
+summed in another order: equal to float round-off, not to the bit), so that training,
+with the graph on, sums as it always has and reruns to the bit:
 
-- under ``no_grad``, a layer with very few output channels (KH*KW*C_out <= C_in,
-  stride 1: a disparity head) contracts the channels first, ``P[t] = xp @ w[:, :, t]``
-  for each kernel tap t, and sums the KH*KW shifted tap images, without the
-  KH*KW-times-larger im2col;
+- a layer with very few output channels (KH*KW*C_out <= C_in, stride 1: a disparity
+  head) contracts the channels first, ``P[t] = xp @ w[:, :, t]`` for each kernel tap
+  t, and sums the KH*KW shifted tap images, without the KH*KW-times-larger im2col;
 - a 3x3 convolution (stride 1, padding 1) of an array ``upsample`` made by nearest x2
   upsampling (``remember_upsampled``; made read-only so that it stays one) runs as
   four 2x2 convolutions of the small image, one per output phase
-  (``_phase_matrices``): 4/9 of the multiply-adds, with or without a graph; its
-  weight gradient is taken the same way (``_phase_weight_grad``);
-- the input gradient of a convolution whose kernel is a multiple of its stride (the
-  Q-net's 4x4, stride 2) runs all stride phases in one GEMM
-  (``_transposed_conv_joint``).
+  (``_phase_matrices``): 4/9 of the multiply-adds.
 """
 from __future__ import annotations
 
@@ -209,7 +205,7 @@ def _phase_matrices(weight) -> dict:
     return _derived(weight, "phases", make)
 
 
-# -- nearest-upsampled arrays, remembered -------------------------------------------------------
+# -- nearest-upsampled arrays, remembered under no_grad --------------------------------------
 _UPSAMPLED: dict = {}
 
 
@@ -321,21 +317,10 @@ def conv2d_nhwc(xp: np.ndarray, kernel, stride, out_hw, wmat_t: np.ndarray,
     return y
 
 
-class UpsampledInput:
-    """What a 3x3 convolution of a nearest-x2-upsampled image keeps for dL/dW: the
-    padded small image ``xs`` (its forward ran as four 2x2 convolutions of it)."""
-
-    def __init__(self, xs: np.ndarray):
-        self.xs = xs
-
-
-def conv_weight_grad(xp, kernel, stride, g: np.ndarray) -> np.ndarray:
+def conv_weight_grad(xp: np.ndarray, kernel, stride, g: np.ndarray) -> np.ndarray:
     """``cols^T @ G`` = dL/dW as a (KH*KW*C, O) matrix, for ``g`` (N, OH, OW, O)
     channels-last; cols is rebuilt block by block from ``xp`` (cheaper than keeping
-    it: see ``_BLOCK_BYTES``), or, for an ``UpsampledInput``, per output phase from the
-    small image (``_phase_weight_grad``)."""
-    if isinstance(xp, UpsampledInput):
-        return _phase_weight_grad(xp.xs, g)
+    it: see ``_BLOCK_BYTES``)."""
     windows = _windows(xp, kernel, stride, g.shape[1:3])
     K, O = windows[0, 0, 0].size, g.shape[3]
     total = np.zeros((K, O), dtype=xp.dtype)
@@ -343,26 +328,6 @@ def conv_weight_grad(xp, kernel, stride, g: np.ndarray) -> np.ndarray:
         np.copyto(dst, src)
         total += cols.T @ g[index].reshape(len(cols), O)
     return total
-
-
-# small row (or column) each tap of a 3x3 kernel reads in output phase 0 and 1
-_PHASE_TAPS = {0: [0, 1, 1], 1: [0, 0, 1]}
-
-
-def _phase_weight_grad(xs: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """dL/dW of a 3x3 convolution that ran as four 2x2 ones (``_phase_matrices``).
-    Phase (p, q) used the 2x2 kernel whose tap (a, b) is the sum of the 3x3 taps
-    (i, j) reading small row a and column b; the chain rule sends that 2x2 kernel's
-    gradient back to each tap of the sum. Returns the (9C, O) matrix, rows (i, j, c)."""
-    N, Hs, Ws, C = xs.shape
-    H, W, O = Hs - 2, Ws - 2, g.shape[3]
-    dw = np.zeros((3, 3, C, O), dtype=g.dtype)
-    for p in (0, 1):
-        for q in (0, 1):
-            gpq = np.ascontiguousarray(g[:, p::2, q::2])
-            d = conv_weight_grad(xs[:, p:p + H + 1, q:q + W + 1], (2, 2), (1, 1), gpq)
-            dw += d.reshape(2, 2, C, O)[np.ix_(_PHASE_TAPS[p], _PHASE_TAPS[q])]
-    return dw.reshape(9 * C, O)
 
 
 # -- plans: a forward convolution's schedule, built once per input shape --------------------
@@ -435,31 +400,23 @@ def conv2d_forward(x: np.ndarray, weight, kernel, stride, padding, out_hw,
                    keep_input: bool):
     """The forward convolution ``cols @ W^T`` of NCHW-shaped ``x`` (no bias).
 
-    Returns ``(y, xp)``: ``y`` a fresh channels-last (N, OH, OW, O) array; ``xp`` what
-    dL/dW will read, if ``keep_input``: the padded channels-last input (a fresh array,
-    or ``x`` itself when nothing is padded), or for an upsampled input the
-    ``UpsampledInput``; else None (the plan's buffer was used, and will be again)."""
+    Returns ``(y, xp)``: ``y`` a fresh channels-last (N, OH, OW, O) array; ``xp`` the
+    padded channels-last input, which dL/dW will read, if ``keep_input`` (a fresh
+    array, or ``x`` itself when nothing is padded); else None (the plan's buffer was
+    used, and will be again)."""
     O = weight.shape[0]
     (KH, KW), (ph, pw) = kernel, padding
     N, (OH, OW) = x.shape[0], out_hw
-    small = None
-    if kernel == (3, 3) and stride == (1, 1) and padding == (1, 1):
-        small = _upsampled_by_two(x)
     if keep_input:                           # the backward pass keeps this one
-        if small is not None:                            # the padded small image
-            xs = pad_nhwc(small, 1, 1)
-            y = np.empty((N, OH, OW, O), x.dtype)
-            H, W = small.shape[2:]
-            for (p, q), wmat in _phase_matrices(weight).items():
-                y[:, p::2, q::2] = conv2d_nhwc(xs[:, p:p + H + 1, q:q + W + 1], (2, 2),
-                                               (1, 1), (H, W), wmat)
-            return y, UpsampledInput(xs)
         if ph == pw == 0 and channels_last(x):           # nothing to pad or move
             xp = x.transpose(0, 2, 3, 1)
         else:
             xp = pad_nhwc(x, ph, pw)
         return conv2d_nhwc(xp, kernel, stride, out_hw, weight_matrix(weight)), xp
     y = np.empty((N, OH, OW, O), x.dtype)
+    small = None
+    if kernel == (3, 3) and stride == (1, 1) and padding == (1, 1):
+        small = _upsampled_by_two(x)
     if small is not None:
         plan = _plan(small.shape, x.dtype, kernel, stride, padding, out_hw, O, "phases")
         pad_nhwc(small, 1, 1, out=plan.xp)
@@ -502,32 +459,53 @@ def transposed_conv(g: np.ndarray, weight: np.ndarray, stride, origin, out_hw
     N, OH, OW, O = g.shape
     _, C, KH, KW = weight.shape
     (sh, sw), (y0, x0), (Hz, Wz) = stride, origin, out_hw
-    if sh * sw > 1 and KH % sh == 0 and KW % sw == 0:
-        return _transposed_conv_joint(g, weight, stride, origin, out_hw)
     z = None if sh == sw == 1 else np.empty((N, Hz, Wz, C), dtype=g.dtype)
-    for a in range(sh):
-        r0 = (a - y0) % sh                    # first row of z in phase a
-        lo_y = (y0 + r0 - a) // sh            # its Y'
-        ny = len(range(r0, Hz, sh))           # rows of z in phase a
-        for b in range(sw):
-            q0 = (b - x0) % sw
-            lo_x = (x0 + q0 - b) // sw
-            nx = len(range(q0, Wz, sw))
+    # per axis and phase: (first row of z in the phase, its Y', rows, taps)
+    rows = [_phase_span(a, y0, Hz, sh, KH) for a in range(sh)]
+    cols = [_phase_span(b, x0, Wz, sw, KW) for b in range(sw)]
+    # one zero-padded copy of g serves every phase: phase (a, b) reads its window
+    # gp[t] = g[lo_y - ka + 1 + t] (zero outside 0..OH-1), window t..t+ka-1
+    live_rows = [(lo - k + 1, lo + n) for _, lo, n, k in rows if n and k]
+    live_cols = [(lo - k + 1, lo + n) for _, lo, n, k in cols if n and k]
+    if not (live_rows and live_cols):                     # no tap reaches the window
+        z[...] = 0
+        return z
+    (u_lo, _), (v_lo, _) = min(live_rows), min(live_cols)
+    u_hi, v_hi = max(hi for _, hi in live_rows), max(hi for _, hi in live_cols)
+    shared = _padded_rows(g, u_lo, u_hi - u_lo, v_lo, v_hi - v_lo)
+    for a, (r0, lo_y, ny, ka) in enumerate(rows):
+        for b, (q0, lo_x, nx, kb) in enumerate(cols):
             if ny == 0 or nx == 0:
                 continue
-            taps = weight[:, :, a::sh, b::sw]             # (O, C, ka, kb)
-            ka, kb = taps.shape[2:]
             if ka == 0 or kb == 0:                        # stride > kernel: no tap
                 z[:, r0::sh, q0::sw] = 0
                 continue
-            # gp[t] = g[lo_y - ka + 1 + t] (zero outside 0..OH-1); window t..t+ka-1
-            gp = _padded_rows(g, lo_y - ka + 1, ny + ka - 1, lo_x - kb + 1, nx + kb - 1)
+            u0, v0 = lo_y - ka + 1 - u_lo, lo_x - kb + 1 - v_lo
+            gp = shared[:, u0:u0 + ny + ka - 1, v0:v0 + nx + kb - 1]
+            taps = weight[:, :, a::sh, b::sw]             # (O, C, ka, kb)
             flipped = taps[:, :, ::-1, ::-1].transpose(2, 3, 0, 1).reshape(ka * kb * O, C)
             part = conv2d_nhwc(gp, (ka, kb), (1, 1), (ny, nx), flipped)
             if z is None:                                 # stride 1: a single phase
                 return part
-            z[:, r0::sh, q0::sw] = part
+            _copy_pixels(z[:, r0::sh, q0::sw], part)
     return z
+
+
+def _copy_pixels(dst: np.ndarray, src: np.ndarray) -> None:
+    """``dst[...] = src`` for two (..., C) arrays whose pixels (the last axis) are
+    contiguous, each pixel copied as one opaque element of C floats (NumPy's copy
+    then moves a pixel per step instead of looping over a few floats)."""
+    pixel = np.dtype((np.void, src.shape[-1] * src.itemsize))
+    np.copyto(dst.view(pixel)[..., 0], src.view(pixel)[..., 0])
+
+
+def _phase_span(a: int, y0: int, Hz: int, s: int, K: int):
+    """Phase ``a`` of a stride-``s`` axis seen from a window starting at padded-input
+    row ``y0``, ``Hz`` rows long: (its first row of the window, that row's Y' = (y0 +
+    r0 - a) / s, how many rows of the window are in it, its taps ``len(range(a, K,
+    s))``)."""
+    r0 = (a - y0) % s
+    return r0, (y0 + r0 - a) // s, len(range(r0, Hz, s)), len(range(a, K, s))
 
 
 def _padded_rows(g: np.ndarray, u0: int, nu: int, v0: int, nv: int) -> np.ndarray:
@@ -540,42 +518,18 @@ def _padded_rows(g: np.ndarray, u0: int, nu: int, v0: int, nv: int) -> np.ndarra
     return gp
 
 
-def _transposed_conv_joint(g, weight, stride, origin, out_hw):
-    """``transposed_conv`` when every phase has the same number of taps (KH, KW
-    multiples of the stride): all s_h*s_w phases in one GEMM. Super-pixel (Y', X')
-    holds the padded-input pixels (s Y' + a, s X' + b) of every phase (a, b); they read
-    the same window of ``g``, so one im2col serves all, against a weight matrix with
-    a column per (a, b, c); the result is then interleaved (depth to space) and
-    cropped to the window. Each entry is the same sum of products as in the per-phase
-    loop (BLAS may round it differently: the GEMM is wider)."""
-    N, OH, OW, O = g.shape
-    _, C, KH, KW = weight.shape
-    (sh, sw), (y0, x0), (Hz, Wz) = stride, origin, out_hw
-    ka, kb = KH // sh, KW // sw
-    Y0, X0 = y0 // sh, x0 // sw                       # first super-pixel touched
-    nY, nX = (y0 + Hz - 1) // sh - Y0 + 1, (x0 + Wz - 1) // sw - X0 + 1
-    gp = _padded_rows(g, Y0 - ka + 1, nY + ka - 1, X0 - kb + 1, nX + kb - 1)
-    # column (a, b, c) of row (ti, tj, o): w[o, c, a + s (ka-1-ti), b + s (kb-1-tj)]
-    w = weight.reshape(O, C, ka, sh, kb, sw)[:, :, ::-1, :, ::-1]
-    w = w.transpose(2, 4, 0, 3, 5, 1).reshape(ka * kb * O, sh * sw * C)
-    part = conv2d_nhwc(gp, (ka, kb), (1, 1), (nY, nX), w)      # (N, nY, nX, sh sw C)
-    full = part.reshape(N, nY, nX, sh, sw, C).transpose(0, 1, 3, 2, 4, 5)
-    full = full.reshape(N, nY * sh, nX * sw, C)
-    r0, q0 = y0 - Y0 * sh, x0 - X0 * sw
-    return np.ascontiguousarray(full[:, r0:r0 + Hz, q0:q0 + Wz])
-
-
 # -- nearest upsampling and concatenation, layout-preserving ---------------------------------
-def repeat_nearest(x: np.ndarray, sh: int, sw: int) -> np.ndarray:
+def repeat_nearest(x: np.ndarray, sh: int, sw: int, remember: bool = False) -> np.ndarray:
     """``np.repeat(np.repeat(x, sh, 2), sw, 3)`` for NCHW ``x``, in ``x``'s layout:
-    sh*sw strided copies, output pixel (sh i + a, sw j + b) = x[i, j]. The result is
-    remembered as an upsampling (``remember_upsampled``: it is read-only)."""
+    sh*sw strided copies, output pixel (sh i + a, sw j + b) = x[i, j]. ``remember``:
+    ``remember_upsampled`` (the result is then read-only)."""
     N, C, H, W = x.shape
     y = empty_like_layout((N, C, sh * H, sw * W), x)
     for a in range(sh):
         for b in range(sw):
             y[:, :, a::sh, b::sw] = x
-    remember_upsampled(y, (sh, sw))
+    if remember:
+        remember_upsampled(y, (sh, sw))
     return y
 
 
