@@ -422,7 +422,7 @@ def conv2d_forward(x: np.ndarray, weight, kernel, stride, padding, out_hw,
         pad_nhwc(small, 1, 1, out=plan.xp)
         weights = _phase_matrices(weight)
         for (p, q), blocks in plan.phases.items():
-            y[:, p::2, q::2] = blocks.run(weights[p, q], plan.part)
+            _copy_pixels(y[:, p::2, q::2], blocks.run(weights[p, q], plan.part))
         return y, None
     kind = "contract" if stride == (1, 1) and KH * KW * O <= x.shape[1] else "im2col"
     plan = _plan(x.shape, x.dtype, kernel, stride, padding, out_hw, O, kind)
@@ -527,7 +527,7 @@ def repeat_nearest(x: np.ndarray, sh: int, sw: int, remember: bool = False) -> n
     y = empty_like_layout((N, C, sh * H, sw * W), x)
     for a in range(sh):
         for b in range(sw):
-            y[:, :, a::sh, b::sw] = x
+            _assign(y[:, :, a::sh, b::sw], x)
     if remember:
         remember_upsampled(y, (sh, sw))
     return y
@@ -546,6 +546,15 @@ def concatenate(arrays, axis: int) -> np.ndarray:
     y = empty_like_layout(tuple(shape), first)
     c = 0
     for a in arrays:
-        y[:, c:c + a.shape[1]] = a
+        _assign(y[:, c:c + a.shape[1]], a)
         c += a.shape[1]
     return y
+
+
+def _assign(dst: np.ndarray, src: np.ndarray) -> None:
+    """``dst[...] = src`` for NCHW-shaped arrays; pixel by pixel (``_copy_pixels``)
+    when both keep a pixel's channels contiguous."""
+    if dst.strides[1] == src.strides[1] == src.itemsize and dst.dtype == src.dtype:
+        _copy_pixels(dst.transpose(0, 2, 3, 1), src.transpose(0, 2, 3, 1))
+    else:
+        dst[...] = src
