@@ -43,9 +43,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
+
+from _timing import CLOCKS, fmt, load_torch, measure, print_table, run_child, thread_counts
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CASES = ("dispnet", "dispnet-sfm", "qnet", "sample", "gemm")
@@ -57,17 +58,9 @@ CLOCK = time.perf_counter          # --clock cpu: time.process_time
 
 def _measure(fns: dict, repeat: int) -> dict:
     """Best-of-``repeat`` time in ms of each callable, run round-robin (ours and torch
-    alternate, so load from other processes hits both alike). Two warm-ups."""
-    for fn in fns.values():
-        fn()
-        fn()
-    best = {name: float("inf") for name in fns}
-    for _ in range(repeat):
-        for name, fn in fns.items():
-            t0 = CLOCK()
-            fn()
-            best[name] = min(best[name], 1e3 * (CLOCK() - t0))
-    return best
+    alternate, so load from other processes hits both alike). Two warm-ups
+    (benchmarks/_timing.py)."""
+    return measure(fns, repeat, warmup=2, clock=CLOCK, stat=min)
 
 
 def _no_grad_torch(torch, fn):
@@ -361,14 +354,10 @@ def bench_gemm(repeat, torch, np):
 # -- driver ------------------------------------------------------------------------------
 def worker(threads: int, cases, repeat: int, clock: str) -> list[dict]:
     global CLOCK
-    CLOCK = time.process_time if clock == "cpu" else time.perf_counter
+    CLOCK = CLOCKS[clock]
     import numpy as np
     sys.path.insert(0, ROOT)
-    try:
-        import torch
-        torch.set_num_threads(threads)
-    except ImportError:
-        torch = None
+    torch = load_torch(threads)
     rows = []
     for case in cases:
         if case in ("dispnet", "dispnet-sfm"):
@@ -386,31 +375,26 @@ def worker(threads: int, cases, repeat: int, clock: str) -> list[dict]:
     return [r for r in rows if r is not None]
 
 
-def _fmt(v, spec=".2f"):
-    return "-" if v is None else format(v, spec)
-
-
-def print_table(rows, repeat: int, clock: str) -> None:
-    head = (f"{'case':34s} {'thr':>3s} {'ours fwd':>9s} {'ours f+b':>9s} {'torch fwd':>9s} "
-            f"{'torch f+b':>9s} {'ratio':>6s}  notes")
-    print(head)
-    print("-" * len(head))
+def print_rows(rows, repeat: int, clock: str) -> None:
+    lines = []
     for r in rows:
         if "gflops" in r:
-            print(f"{r['case']:34s} {r['threads']:>3d} {'':>9s} {'':>9s} {'':>9s} {'':>9s} "
-                  f"{'':>6s}  numpy {r['gflops']:.0f} GFLOP/s, torch "
-                  f"{_fmt(r.get('torch_gflops'), '.0f')} GFLOP/s")
+            lines.append([r["case"], str(r["threads"]), "", "", "", "", "",
+                          f"numpy {r['gflops']:.0f} GFLOP/s, torch "
+                          f"{fmt(r.get('torch_gflops'), '.0f')} GFLOP/s"])
             continue
         ratio = r["ours_fb"] / r["torch_fb"] if "torch_fb" in r else None
         notes = ""
         if "conv_gflops" in r:
             notes = (f"conv fwd GFLOP/s: ours {r['conv_gflops']:.0f}, torch "
-                     f"{_fmt(r.get('torch_conv_gflops'), '.0f')}")
-        print(f"{r['case']:34s} {r['threads']:>3d} {r['ours_fwd']:9.2f} {r['ours_fb']:9.2f} "
-              f"{_fmt(r.get('torch_fwd')):>9s} {_fmt(r.get('torch_fb')):>9s} "
-              f"{_fmt(ratio):>6s}  {notes}")
-    print(f"times in ms ({clock} clock), best of {repeat} (ours and torch alternating); "
-          f"ratio = ours / torch, forward + backward")
+                     f"{fmt(r.get('torch_conv_gflops'), '.0f')}")
+        lines.append([r["case"], str(r["threads"]), fmt(r["ours_fwd"], ".2f"),
+                      fmt(r["ours_fb"], ".2f"), fmt(r.get("torch_fwd"), ".2f"),
+                      fmt(r.get("torch_fb"), ".2f"), fmt(ratio, ".2f"), notes])
+    print_table([("case", 34), ("thr", 3), ("ours fwd", 9), ("ours f+b", 9),
+                 ("torch fwd", 9), ("torch f+b", 9), ("ratio", 6)], lines,
+                f"times in ms ({clock} clock), best of {repeat} (ours and torch "
+                f"alternating); ratio = ours / torch, forward + backward")
 
 
 def main(argv=None) -> None:
@@ -430,21 +414,11 @@ def main(argv=None) -> None:
     if args.worker is not None:
         print(json.dumps(worker(args.worker, cases, args.repeat, args.clock)))
         return
-    threads = [int(t) for t in args.threads.split(",") if t]
-    if args.clock == "cpu" and threads != [1]:
-        parser.error("--clock cpu measures one thread only: use it with --threads 1")
     rows = []
-    for n in threads:
-        env = dict(os.environ, OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n),
-                   MKL_NUM_THREADS=str(n))
-        proc = subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", str(n),
-                               "--cases", ",".join(cases), "--repeat", str(args.repeat),
-                               "--clock", args.clock],
-                              env=env, capture_output=True, text=True)
-        if proc.returncode != 0:
-            sys.exit(f"the {n}-thread run failed:\n{proc.stderr}")
-        rows += json.loads(proc.stdout.strip().splitlines()[-1])
-    print_table(rows, args.repeat, args.clock)
+    for n in thread_counts(parser, args.threads, args.clock):
+        rows += run_child(__file__, n, ["--worker", str(n), "--cases", ",".join(cases),
+                                        "--repeat", str(args.repeat), "--clock", args.clock])
+    print_rows(rows, args.repeat, args.clock)
 
 
 if __name__ == "__main__":

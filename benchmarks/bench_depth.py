@@ -26,9 +26,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
-import time
+
+from _timing import load_torch, median_ms, run_child, thread_counts
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -99,40 +99,25 @@ def _child(threads: int, repeat: int) -> dict:
             raise AssertionError(f"bench_depth: losses differ: ours {ours_loss}, torch "
                                  f"{result['loss_torch']}")
     result["infer_max_rel_diff"] = rel
-    result["infer_fps_ours"] = 64 / (_median_ms(ours_infer, repeat) / 1000)
-    result["infer_fps_ours_flip"] = 64 / (_median_ms(ours_infer_flip, repeat) / 1000)
-    result["infer_ms_b1_ours"] = _median_ms(ours_infer_b1, 20 * repeat)
-    result["train_iter_ms_ours"] = _median_ms(ours_iter, repeat)
+    result["infer_fps_ours"] = 64 / (median_ms(ours_infer, repeat) / 1000)
+    result["infer_fps_ours_flip"] = 64 / (median_ms(ours_infer_flip, repeat) / 1000)
+    result["infer_ms_b1_ours"] = median_ms(ours_infer_b1, 20 * repeat)
+    result["train_iter_ms_ours"] = median_ms(ours_iter, repeat)
     if torch_side is not None:
-        result["train_iter_ms_torch"] = _median_ms(torch_side["iter"], repeat)
-        result["infer_fps_torch"] = 64 / (_median_ms(torch_side["infer"], repeat) / 1000)
-        result["infer_ms_b1_torch"] = _median_ms(torch_side["infer_b1"], 20 * repeat)
+        result["train_iter_ms_torch"] = median_ms(torch_side["iter"], repeat)
+        result["infer_fps_torch"] = 64 / (median_ms(torch_side["infer"], repeat) / 1000)
+        result["infer_ms_b1_torch"] = median_ms(torch_side["infer_b1"], 20 * repeat)
         result["train_ratio"] = result["train_iter_ms_ours"] / result["train_iter_ms_torch"]
     return result
 
 
-def _median_ms(fn, repeat: int) -> float:
-    import numpy as np
-    for _ in range(3):
-        fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times) * 1000)
-
-
 def _torch_side(disp, pose, target, sources, K, cfg, frames, threads):
-    try:
-        import torch
-        import torch.nn.functional as F
-    except ImportError:
+    torch = load_torch(threads)
+    if torch is None:
         return None
     import numpy as np
     from minid3rqn.depth.losses import SMOOTH_WEIGHT, SPEED_WEIGHT, STEP
-    torch.set_num_threads(threads)
-    nn = torch.nn
+    nn, F = torch.nn, torch.nn.functional
 
     class DispNetT(nn.Module):
         def __init__(self):
@@ -292,15 +277,8 @@ def main() -> int:
     if args.child is not None:
         print(json.dumps(_child(args.child, args.repeat)))
         return 0
-    for t in [int(x) for x in args.threads.split(",")]:
-        env = dict(os.environ, OMP_NUM_THREADS=str(t), OPENBLAS_NUM_THREADS=str(t),
-                   MKL_NUM_THREADS=str(t))
-        out = subprocess.run([sys.executable, __file__, "--child", str(t), "--repeat",
-                              str(args.repeat)], env=env, capture_output=True, text=True)
-        if out.returncode:
-            sys.stderr.write(out.stderr)
-            return out.returncode
-        row = json.loads(out.stdout.strip().splitlines()[-1])
+    for t in thread_counts(parser, args.threads):
+        row = run_child(__file__, t, ["--child", str(t), "--repeat", str(args.repeat)])
         print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
                           for k, v in row.items()}))
     return 0

@@ -33,28 +33,20 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 
+from _timing import CLOCKS, fmt, load_torch, measure, print_table, run_child, thread_counts
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CASES = ("act", "depth", "train", "conv")
-CLOCK = time.perf_counter
+CLOCK = time.perf_counter          # --clock cpu: time.process_time
 
 
-def _measure(fns: dict, repeat: int, warmup: int = 3) -> dict:
-    """Median ms of each callable over ``repeat`` rounds, the callables alternating."""
-    import numpy as np
-    for fn in fns.values():
-        for _ in range(warmup):
-            fn()
-    times = {name: [] for name in fns}
-    for _ in range(repeat):
-        for name, fn in fns.items():
-            t0 = CLOCK()
-            fn()
-            times[name].append(1e3 * (CLOCK() - t0))
-    return {name: float(np.median(ts)) for name, ts in times.items()}
+def _measure(fns: dict, repeat: int) -> dict:
+    """Median ms of each callable over ``repeat`` rounds, the callables alternating,
+    after 3 warm-ups (benchmarks/_timing.py)."""
+    return measure(fns, repeat, warmup=3, clock=CLOCK)
 
 
 def _row(case: str, ours: float, theirs: float | None, **extra) -> dict:
@@ -307,17 +299,13 @@ def bench_conv(repeat, torch, np, ag):
 # -- driver ------------------------------------------------------------------------------
 def worker(threads: int, cases, repeat: int, clock: str) -> list[dict]:
     global CLOCK
-    CLOCK = time.process_time if clock == "cpu" else time.perf_counter
+    CLOCK = CLOCKS[clock]
     import numpy as np
     sys.path.insert(0, ROOT)
     from minid3rqn import autograd as ag
     from minid3rqn.allocator import keep_freed_memory
     keep_freed_memory()                     # as python -m minid3rqn does
-    try:
-        import torch
-        torch.set_num_threads(threads)
-    except ImportError:
-        torch = None
+    torch = load_torch(threads)
     rows = []
     for case in cases:
         if case == "act":
@@ -333,21 +321,19 @@ def worker(threads: int, cases, repeat: int, clock: str) -> list[dict]:
     return rows
 
 
-def print_table(rows, repeat: int, clock: str) -> None:
-    head = f"{'case':38s} {'thr':>3s} {'ours ms':>9s} {'torch ms':>9s} {'ratio':>6s}  notes"
-    print(head)
-    print("-" * len(head))
+def print_rows(rows, repeat: int, clock: str) -> None:
+    lines = []
     for r in rows:
-        fmt = lambda v: "-" if v is None else f"{v:.3f}"        # noqa: E731
         notes = ""
         if "ours_gflops" in r:
             notes = (f"ours {r['ours_gflops']:.0f} GFLOP/s = {100 * r['share_of_gemm']:.0f}% "
                      f"of NumPy's GEMM ({r['gemm_gflops']:.0f}); torch "
                      f"{r.get('torch_gflops', float('nan')):.0f}")
-        print(f"{r['case']:38s} {r['threads']:>3d} {fmt(r['ours_ms']):>9s} "
-              f"{fmt(r['torch_ms']):>9s} {fmt(r['ratio']):>6s}  {notes}")
-    print(f"medians of {repeat}+ runs ({clock} clock), ours and torch alternating; "
-          f"ratio = ours / torch")
+        lines.append([r["case"], str(r["threads"]), fmt(r["ours_ms"], ".3f"),
+                      fmt(r["torch_ms"], ".3f"), fmt(r["ratio"], ".3f"), notes])
+    print_table([("case", 38), ("thr", 3), ("ours ms", 9), ("torch ms", 9), ("ratio", 6)],
+                lines, f"medians of {repeat}+ runs ({clock} clock), ours and torch "
+                       f"alternating; ratio = ours / torch")
 
 
 def main(argv=None) -> None:
@@ -370,24 +356,14 @@ def main(argv=None) -> None:
     if args.worker is not None:
         print(json.dumps(worker(args.worker, cases, args.repeat, args.clock)))
         return
-    threads = [int(t) for t in args.threads.split(",") if t]
-    if args.clock == "cpu" and threads != [1]:
-        parser.error("--clock cpu measures one thread only: use it with --threads 1")
     rows = []
-    for n in threads:
-        env = dict(os.environ, OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n),
-                   MKL_NUM_THREADS=str(n))
-        proc = subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", str(n),
-                               "--cases", ",".join(cases), "--repeat", str(args.repeat),
-                               "--clock", args.clock],
-                              env=env, capture_output=True, text=True)
-        if proc.returncode != 0:
-            sys.exit(f"the {n}-thread run failed:\n{proc.stderr}")
-        rows += json.loads(proc.stdout.strip().splitlines()[-1])
+    for n in thread_counts(parser, args.threads, args.clock):
+        rows += run_child(__file__, n, ["--worker", str(n), "--cases", ",".join(cases),
+                                        "--repeat", str(args.repeat), "--clock", args.clock])
     if args.json:
         for r in rows:
             print(json.dumps(r))
-    print_table(rows, args.repeat, args.clock)
+    print_rows(rows, args.repeat, args.clock)
 
 
 if __name__ == "__main__":
