@@ -51,19 +51,9 @@ import sys
 import time
 from pathlib import Path
 
+from _timing import load_torch, median_ms, thread_env
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def _median_time(fn, repeat: int, warmup: int = 2) -> float:
-    import numpy as np
-    for _ in range(warmup):
-        fn()
-    ts = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
 
 
 def bench_update(repeat: int, threads: int) -> dict:
@@ -80,15 +70,11 @@ def bench_update(repeat: int, threads: int) -> dict:
                           np.ones((L, B), np.float32))
     agent = Agent(QNetConfig(), AgentConfig(), rng=0)
     loss_ours, _ = agent.loss(batch)
-    try:
-        import torch
-    except ImportError:
-        torch = None
+    torch = load_torch(threads)
     if torch is not None:          # copy the weights before our updates change them
-        torch.set_num_threads(threads)
         tnet, ttgt = _torch_qnet(agent.online, torch), _torch_qnet(agent.target, torch)
     out = {"part": "update", "threads": threads, "batch": f"{B}x{L}",
-           "ours_ms": 1000 * _median_time(lambda: agent.update(batch), repeat)}
+           "ours_ms": median_ms(lambda: agent.update(batch), repeat, warmup=2)}
     if torch is None:
         out["torch_ms"] = None
         return out
@@ -121,7 +107,7 @@ def bench_update(repeat: int, threads: int) -> dict:
         torch.nn.utils.clip_grad_norm_(tnet.parameters(), agent.config.grad_clip)
         opt.step()
 
-    out["torch_ms"] = 1000 * _median_time(torch_update, repeat)
+    out["torch_ms"] = median_ms(torch_update, repeat, warmup=2)
     out["ratio"] = out["ours_ms"] / out["torch_ms"]
     out["losses_agree"] = True
     return out
@@ -389,8 +375,6 @@ def main():
     if args.child:
         child(args)
         return
-    env = dict(os.environ, OMP_NUM_THREADS=str(args.threads),
-               OPENBLAS_NUM_THREADS=str(args.threads), MKL_NUM_THREADS=str(args.threads))
     cmd = [sys.executable, os.path.abspath(__file__), "--child", "--threads", str(args.threads),
            "--repeat", str(args.repeat), "--eval-flights", str(args.eval_flights),
            "--eval-workers", args.eval_workers, "--ensemble", str(args.ensemble)]
@@ -408,7 +392,7 @@ def main():
         if not Path(args.qnet).is_file():
             p.error(f"--qnet: expected a Q-net .npz file; got {args.qnet!r} (not a file)")
         cmd += ["--qnet", args.qnet]
-    sys.exit(subprocess.run(cmd, env=env).returncode)
+    sys.exit(subprocess.run(cmd, env=thread_env(args.threads)).returncode)
 
 
 if __name__ == "__main__":

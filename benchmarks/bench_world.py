@@ -31,6 +31,8 @@ from minid3rqn.world import (Camera, DroneEnv, make_scene, render, render_batch,
                              sample_start_pose)
 from minid3rqn.world.renderer import cast_columns
 
+from _timing import median_ms
+
 
 def clock() -> float:
     """CPU seconds used by this thread: unlike wall time it does not count the time other
@@ -40,12 +42,7 @@ def clock() -> float:
 
 def best_time(fn, n: int, repeats: int) -> float:
     """CPU seconds per call: the median over ``n * repeats`` individually timed calls."""
-    times = []
-    for _ in range(n * repeats):
-        start = clock()
-        fn()
-        times.append(clock() - start)
-    return float(np.median(times))
+    return median_ms(fn, n * repeats, warmup=0, clock=clock) / 1e3
 
 
 def cast_faults(fn, n: int) -> tuple[float, float, float]:
