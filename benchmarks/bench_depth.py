@@ -9,9 +9,10 @@ Measured (medians over ``--repeat`` runs after 3 warm-ups, float32, 32x104):
   default config: DispNet on 4 targets (4 scales), PoseNet on 4 triplets, the
   view-synthesis loss (2 sources warped at 4 scales on downsampled images, SSIM,
   min-reprojection, auto-masking, edge-aware smoothness, known-speed term), backward,
-  Adam step. The torch side mirrors every step (``grid_sample`` with
-  align_corners=True is our sampler, ``avg_pool2d`` our area downsampling) and starts
-  from OUR weights, so the two losses must agree: the script checks it before timing.
+  Adam step. The torch side mirrors every step (the DispNet of ``bench_nets.py``,
+  ``grid_sample`` with align_corners=True for our sampler, ``avg_pool2d`` for our area
+  downsampling) and starts from OUR weights, so the two losses must agree: the script
+  checks it before timing.
 - ``infer_fps``: DispNet (finest scale only) on batches of 64 uint8 frames, no graph,
   through ``DepthEstimator.predict_disp`` (``DispNet.forward`` under ``no_grad``, 32
   frames at a time). ``infer_ms_b1``: one frame (batch 1, the flight loop). The script
@@ -29,6 +30,7 @@ import os
 import sys
 
 from _timing import load_torch, median_ms, run_child, thread_counts
+from bench_nets import _torch_dispnet
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -119,39 +121,6 @@ def _torch_side(disp, pose, target, sources, K, cfg, frames, threads):
     from minid3rqn.depth.losses import SMOOTH_WEIGHT, SPEED_WEIGHT, STEP
     nn, F = torch.nn, torch.nn.functional
 
-    class DispNetT(nn.Module):
-        def __init__(self):
-            super().__init__()
-            conv = lambda ci, co, s=1: nn.Conv2d(ci, co, 3, s, 1)
-            e, d = disp.encoder_channels, disp.decoder_channels
-            self.enc_a = nn.ModuleList([conv(ci, co, 2) for ci, co in zip((3,) + e[:-1], e)])
-            self.enc_b = nn.ModuleList([conv(c, c) for c in e])
-            ins = [e[-1]] + [d[i] for i in reversed(range(1, len(e)))]
-            self.dec_a = nn.ModuleList([conv(ci, d[i]) for ci, i in
-                                        zip(ins, reversed(range(len(e))))])
-            self.dec_b = nn.ModuleList([conv(d[i] + (e[i - 1] if i else 0), d[i])
-                                        for i in reversed(range(len(e)))])
-            self.heads = nn.ModuleList([conv(d[i], 1) for i in range(disp.n_scales)])
-
-        def forward(self, x, scales=None):
-            h, w = x.shape[2:]
-            x = (x - 0.45) / 0.225
-            feats = []
-            for a, b in zip(self.enc_a, self.enc_b):
-                x = F.elu(b(F.elu(a(x))))
-                feats.append(x)
-            n_out = disp.n_scales if scales is None else scales
-            out = [None] * disp.n_scales
-            for j, i in enumerate(reversed(range(len(feats)))):
-                x = F.interpolate(F.elu(self.dec_a[j](x)), scale_factor=2, mode="nearest")
-                x = x[:, :, :-(-h // 2 ** i), :-(-w // 2 ** i)]
-                if i > 0:
-                    x = torch.cat([x, feats[i - 1]], 1)
-                x = F.elu(self.dec_b[j](x))
-                if i < n_out:
-                    out[i] = torch.sigmoid(self.heads[i](x)) * disp.disp_scale + disp.min_disp
-            return out[:n_out]
-
     class PoseNetT(nn.Module):
         def __init__(self):
             super().__init__()
@@ -165,8 +134,7 @@ def _torch_side(disp, pose, target, sources, K, cfg, frames, threads):
                 x = F.relu(c(x))
             return (self.head(x).mean((2, 3)) * pose.pose_scale).view(-1, 2, 6)
 
-    dn, pn = DispNetT(), PoseNetT()
-    dn.load_state_dict({k: torch.from_numpy(v) for k, v in disp.state_dict().items()})
+    dn, pn = _torch_dispnet(disp, torch), PoseNetT()
     pn.load_state_dict({k: torch.from_numpy(v) for k, v in pose.state_dict().items()})
     Kt = torch.tensor(K, dtype=torch.float32)
     tgt = torch.from_numpy(target)
