@@ -104,12 +104,10 @@ def print_table(columns: list[tuple[str, int]], rows: list[list[str]], footer: s
     """A table with a column of each (title, width) in ``columns`` (the first aligned
     left, the others right) and a last, free column "notes"; ``rows``: the cells of each
     row as strings, its notes last; ``footer``: the line below."""
-    widths = [width for _, width in columns]
-
     def line(cells):
-        *cols, notes = cells
-        return " ".join([f"{cols[0]:{widths[0]}s}"] + [f"{c:>{w}s}" for c, w in
-                                                        zip(cols[1:], widths[1:])]) + f"  {notes}"
+        (first, (_, width)), *rest = zip(cells, columns)
+        aligned = [f"{first:{width}s}"] + [f"{cell:>{w}s}" for cell, (_, w) in rest]
+        return " ".join(aligned) + f"  {cells[-1]}"
     head = line([title for title, _ in columns] + ["notes"])
     print(head)
     print("-" * len(head))
