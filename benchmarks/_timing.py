@@ -17,10 +17,13 @@ loads. A script that compares thread counts therefore re-runs itself once per co
 child process with the three set to that count; the child gives torch the same number
 (``torch.set_num_threads``) and prints its results as its last line, in JSON.
 
-Tables (``print_table``, ``fmt``): fixed-width columns, then free notes.
+Options (``positive_int``, ``case_names``, ``thread_counts``): checked where they are
+read, a bad value refused in one line naming the option. Tables (``print_table``,
+``fmt``): fixed-width columns, then free notes.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import statistics
@@ -53,9 +56,29 @@ def median_ms(fn, repeat: int, warmup: int = 3, clock=time.perf_counter) -> floa
     return measure({"fn": fn}, repeat, warmup, clock)["fn"]
 
 
-# -- one process per thread count --------------------------------------------------------
+# -- options -----------------------------------------------------------------------------
+def positive_int(text: str) -> int:
+    """An argparse ``type``: a whole number of 1 or more (``--repeat``)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive whole number; got {text!r}")
+    return value
+
+
+def case_names(parser, text: str, known) -> list[str]:
+    """The case names of ``--cases`` ("act,depth"), each one of ``known``."""
+    cases = [c for c in text.split(",") if c]
+    unknown = set(cases) - set(known)
+    if unknown:
+        parser.error(f"--cases: unknown {sorted(unknown)}; choose from {','.join(known)}")
+    return cases
+
+
 def thread_counts(parser, text: str, clock: str = "wall") -> list[int]:
-    """The thread counts of ``--threads`` ("1,2"), checked; ``clock`` cpu allows only 1."""
+    """The thread counts of ``--threads`` ("1,2"); with ``--clock cpu`` only 1."""
     try:
         threads = [int(t) for t in text.split(",") if t]
     except ValueError:
@@ -66,6 +89,9 @@ def thread_counts(parser, text: str, clock: str = "wall") -> list[int]:
     if clock == "cpu" and threads != [1]:
         parser.error("--clock cpu measures one thread only: use it with --threads 1")
     return threads
+
+
+# -- one process per thread count --------------------------------------------------------
 
 
 def thread_env(threads: int) -> dict:

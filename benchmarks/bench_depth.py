@@ -29,7 +29,7 @@ import json
 import os
 import sys
 
-from _timing import load_torch, median_ms, run_child, thread_counts
+from _timing import load_torch, median_ms, positive_int, run_child, thread_counts
 from bench_nets import _torch_dispnet
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -239,7 +239,7 @@ def _torch_side(disp, pose, target, sources, K, cfg, frames, threads):
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", default="1,2", help="comma-separated thread counts")
-    parser.add_argument("--repeat", type=int, default=10)
+    parser.add_argument("--repeat", type=positive_int, default=10)
     parser.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child is not None:

@@ -36,7 +36,8 @@ import os
 import sys
 import time
 
-from _timing import CLOCKS, fmt, load_torch, measure, print_table, run_child, thread_counts
+from _timing import (CLOCKS, case_names, fmt, load_torch, measure, positive_int,
+                     print_table, run_child, thread_counts)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CASES = ("act", "depth", "train", "conv")
@@ -341,18 +342,14 @@ def main(argv=None) -> None:
     parser.add_argument("--threads", default="1,2",
                         help="comma-separated thread counts, one child process each")
     parser.add_argument("--cases", default=",".join(CASES), help=f"from {','.join(CASES)}")
-    parser.add_argument("--repeat", type=int, default=10, help="timed runs per case")
+    parser.add_argument("--repeat", type=positive_int, default=10,
+                        help="timed runs per case")
     parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                         help="wall clock, or the process's CPU time (one thread only)")
     parser.add_argument("--json", action="store_true", help="print the rows as JSON lines")
     parser.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
-    cases = [c for c in args.cases.split(",") if c]
-    unknown = set(cases) - set(CASES)
-    if unknown:
-        parser.error(f"--cases: unknown {sorted(unknown)}; choose from {','.join(CASES)}")
-    if args.repeat < 1:
-        parser.error(f"--repeat: expected a positive number; got {args.repeat}")
+    cases = case_names(parser, args.cases, CASES)
     if args.worker is not None:
         print(json.dumps(worker(args.worker, cases, args.repeat, args.clock)))
         return

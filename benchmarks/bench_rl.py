@@ -51,7 +51,7 @@ import sys
 import time
 from pathlib import Path
 
-from _timing import load_torch, median_ms, thread_env
+from _timing import load_torch, median_ms, positive_int, thread_env
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -349,8 +349,8 @@ def child(args) -> None:
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--repeat", type=int, default=10)
+    p.add_argument("--threads", type=positive_int, default=1)
+    p.add_argument("--repeat", type=positive_int, default=10)
     p.add_argument("--only", default=None,
                    help="comma list of update,framework,framework_old,eval")
     p.add_argument("--eval-flights", type=int, default=2000)

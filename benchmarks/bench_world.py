@@ -31,7 +31,7 @@ from minid3rqn.world import (Camera, DroneEnv, make_scene, render, render_batch,
                              sample_start_pose)
 from minid3rqn.world.renderer import cast_columns
 
-from _timing import median_ms
+from _timing import median_ms, positive_int
 
 
 def clock() -> float:
@@ -101,7 +101,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--scenario", default="basic")
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=positive_int, default=5)
     parser.add_argument("--n-envs", type=int, default=100)
     parser.add_argument("--quick", action="store_true", help="fewer iterations (a smoke run)")
     parser.add_argument("--default-malloc", action="store_true",
