@@ -19,9 +19,10 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
-def on_ray():
+def on_ray(killed_once):
     import sys
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])   # _where, by value
+    for fn in (_where, killed_once):       # by value: the workers cannot import the tests
+        ray.cloudpickle.register_pickle_by_value(sys.modules[fn.__module__])
     executor = RayExecutor()
     executor._init()
     yield executor
@@ -80,17 +81,6 @@ def test_a_folder_the_ray_workers_cannot_see_is_refused(on_ray, tmp_path, monkey
         on_ray.run(_where, [0], check_folders=[tmp_path])
 
 
-def _killed_once(folder, task):
-    """Task 1 kills its Ray worker the first time it runs."""
-    import os
-    import signal
-    mark = Path(folder) / f"ran{task}"
-    if task == 1 and not mark.exists():
-        mark.write_text("once")
-        os.kill(os.getpid(), signal.SIGKILL)
-    return task * 10
-
-
-def test_a_task_lost_with_its_ray_worker_runs_again(on_ray, tmp_path):
-    assert on_ray.run(_killed_once, range(3), str(tmp_path)) == [0, 10, 20]
+def test_a_task_lost_with_its_ray_worker_runs_again(on_ray, tmp_path, killed_once):
+    assert on_ray.run(killed_once, range(3), str(tmp_path)) == [0, 10, 20]
     assert (tmp_path / "ran1").exists()

@@ -43,21 +43,12 @@ def test_an_error_in_a_worker_is_raised_in_the_parent():
         LocalPool(2).run(_fails_on_3, range(6))
 
 
-def _killed_once(folder, task):
-    """Task 1 kills its worker the first time it runs."""
-    mark = Path(folder) / f"ran{task}"
-    if task == 1 and not mark.exists():
-        mark.write_text("once")
-        os.kill(os.getpid(), signal.SIGKILL)
-    return task * 10
-
-
 def _always_killed(shared, task):
     os.kill(os.getpid(), signal.SIGKILL)
 
 
-def test_a_task_lost_with_its_worker_runs_again(tmp_path, capsys):
-    assert LocalPool(2).run(_killed_once, range(4), str(tmp_path)) == [0, 10, 20, 30]
+def test_a_task_lost_with_its_worker_runs_again(tmp_path, capsys, killed_once):
+    assert LocalPool(2).run(killed_once, range(4), str(tmp_path)) == [0, 10, 20, 30]
     assert "a worker was lost (killed by signal 9 (SIGKILL)) running task 2 of 4; " \
            "running it again (rerun 1 of 3)" in capsys.readouterr().err
     with pytest.raises(WorkerLost, match=rf"task \d of 2 lost its worker {RETRIES + 1} times"):
