@@ -92,8 +92,6 @@ def thread_counts(parser, text: str, clock: str = "wall") -> list[int]:
 
 
 # -- one process per thread count --------------------------------------------------------
-
-
 def thread_env(threads: int) -> dict:
     """This process's environment with the BLAS thread counts set to ``threads``."""
     n = str(threads)
