@@ -266,7 +266,6 @@ def bench_framework_rendered_twice(repeat: int, threads: int, n_flights: int = 1
     """The loop this benchmark ran before: render and predict the current pose, act,
     then ``DroneEnv.step`` (which renders and predicts the next pose again): two
     renders and two DispNet passes per step. Kept to compare with old figures."""
-    import numpy as np
     from minid3rqn.rl.models import shipped_depth_model, load_depth_estimator
     from minid3rqn.world import DroneEnv, render_batch
     policy, model = _qnet_model()

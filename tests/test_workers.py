@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 
@@ -14,7 +13,7 @@ import numpy as np
 import pytest
 
 from minid3rqn.executor import RETRIES, LocalPool, WorkerLost, get_executor
-from minid3rqn.io import RunStopped, load_npz, read_metadata
+from minid3rqn.io import load_npz, read_metadata
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
