@@ -7,8 +7,8 @@ the operating system and, when the top of its heap holds more free memory than a
 threshold, hands that memory back. The next call then asks for it again, and the kernel
 must fault in and zero every page before NumPy can write to it. With glibc's defaults a
 ray cast of 256 poses spends two thirds of its time there; a Q-net training run a few
-seconds at its start, until glibc's own adjustment of its thresholds catches up (docs/
-world.md, section Speed, "Where the cast's time went").
+seconds at its start, until glibc's own adjustment of its thresholds catches up
+(docs/results.md, section Speed).
 
 ``keep_freed_memory`` raises both thresholds with ``mallopt``, so that blocks up to
 ``mmap_bytes`` come from the heap and up to ``trim_bytes`` of freed memory stay with the

@@ -134,7 +134,7 @@ def test_same_seed_same_network():
 
 def test_blas_core_names_the_kernels_openblas_runs():
     """io.blas_core reports OpenBLAS's kernel choice, which OPENBLAS_CORETYPE can set: the
-    reason a long run's numbers can differ between CPUs (docs/beyond.md, "Determinism across machines")."""
+    reason a long run's numbers can differ between CPUs (docs/d3rqn.md, section 7)."""
     import os
     import platform
     import subprocess
