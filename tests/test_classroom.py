@@ -633,3 +633,20 @@ def test_a_file_that_is_not_utf8_is_the_students_problem(tmp_path):
     report = EXERCISES["reward"].checker(path)
     assert not report.passed and "is not UTF-8 text" in report.messages
     assert "checker itself" not in report.messages
+
+
+def test_an_exercise_run_is_one_command_at_a_time(tmp_path):
+    """A run whose folder another command holds is refused in one line, before any
+    training, naming the option that gives another run; the folder is left as it was."""
+    from minid3rqn.classroom.runner import run_exercise
+    from minid3rqn.io import Busy, hold
+    clip = tmp_path / "clip.py"
+    clip.write_text((SOLUTIONS / "reward.py").read_text())
+    with hold(tmp_path / "reward" / "clip-smoke", "--file"):
+        with pytest.raises(Busy, match="--file: .*clip-smoke.* is in use by another command"):
+            run_exercise("reward", file=clip, budget="smoke", out=tmp_path, progress=False)
+    assert not (tmp_path / "reward" / "clip-smoke").exists()
+    with hold(tmp_path / "depth-loss" / "paper-L1-smoke", "--seed"):
+        with pytest.raises(Busy, match="--seed: .*paper-L1-smoke"):
+            run_exercise("depth-loss", baseline=True, budget="smoke", out=tmp_path,
+                         progress=False)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import write_json
+from ..io import hold, holding, write_json
 from .checks import Exercise, find
 from .student import Report, check_in_child, line_in, load, working_copy
 
@@ -194,8 +194,6 @@ def run_agent_exercise(ex: Exercise, module, summary: dict | None = None, budget
                        name: str | None = None) -> dict:
     """Train, evaluate and record one run of an agent exercise (``module`` None: the
     paper's setting); ``name`` replaces "yours" in the run's name."""
-    from ..rl.evaluate import evaluate_policy
-    from ..rl.models import actions_and_camera, load_qnet_policy
     s = agent_settings(ex, module, summary or {}, variant)
     cfg = _agent_config(ex, s, budget, seed)
     paper = _agent_config(ex, agent_settings(ex, None, {}, variant), budget, seed)
@@ -205,6 +203,18 @@ def run_agent_exercise(ex: Exercise, module, summary: dict | None = None, budget
     shared = cfg == paper and not any(s[k] for k in STUDENT_FUNCTIONS)
     folder = baseline_folder(cfg, budget, out) if shared else run_dir
     n_flights = flights or AGENT_BUDGETS[budget]["flights"]
+    # one command at a time on a run (another file, or another seed, is another run)
+    option = "--seed" if module is None else "--file"
+    with holding((run_dir, option), (folder if shared else None, "--seed")):
+        return _agent_run(ex, s, cfg, folder, run_dir, tag, budget, seed, n_flights,
+                          shared, progress, out)
+
+
+def _agent_run(ex, s, cfg, folder, run_dir, tag, budget, seed, n_flights, shared, progress,
+               out) -> dict:
+    """Train, fly and record one agent exercise run (its folders held by the caller)."""
+    from ..rl.evaluate import evaluate_policy
+    from ..rl.models import actions_and_camera, load_qnet_policy
     # exercise 8 also flies the test flights on the DispNet's depth: load it before
     # training, so that a missing depth model stops the run now, not minutes later
     est, est_path = _shipped_depth_estimator(cfg.scenario) if ex.name == "depth-errors" \
@@ -307,13 +317,19 @@ def _frames(folder: Path, n: int, seed: int):
 
 def run_depth_exercise(ex: Exercise, module, budget: str = "small", seed: int = 0, out=OUT,
                        progress: bool = True, name: str | None = None) -> dict:
-    from ..depth.evaluate import DepthEstimator, comparison_picture, evaluate
-    from ..depth.losses import LossConfig
-    from ..depth.train import TrainConfig, Trainer
     b = DEPTH_BUDGETS[budget]
     tag = ("paper-L1" if module is None else name or "yours") + \
         (f"-s{seed}" if seed else "") + ("" if budget == "small" else f"-{budget}")
     run_dir = Path(out) / ex.name / tag
+    with hold(run_dir, "--seed" if module is None else "--file"):
+        return _depth_run(ex, module, b, seed, run_dir, tag, budget, progress, out)
+
+
+def _depth_run(ex, module, b, seed, run_dir, tag, budget, progress, out) -> dict:
+    """Train, evaluate and record one depth exercise run (its folder held by the caller)."""
+    from ..depth.evaluate import DepthEstimator, comparison_picture, evaluate
+    from ..depth.losses import LossConfig
+    from ..depth.train import TrainConfig, Trainer
     run_dir.mkdir(parents=True, exist_ok=True)
     print(f"exercise {ex.name} [{tag}]: DispNet + PoseNet, {b['iterations']} iterations on "
           f"{b['frames']} frames (budget '{budget}': about {b['minutes']:g} min on a free "
