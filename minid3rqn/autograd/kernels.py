@@ -453,8 +453,9 @@ def transposed_conv(g: np.ndarray, weight: np.ndarray, stride, origin, out_hw
 
     (col2im of ``g @ W``). Rows with Y = s Y' + a (phase a) only meet the taps
     i = a + s i', at u = Y' - i': a stride-1 correlation of ``g`` with the flipped
-    taps ``w[:, :, a::s]``. Per phase (a, b): pad ``g``, im2col, one GEMM, and write
-    the result to ``z[:, a'::s, b'::s]``.
+    taps ``w[:, :, a::s]``. ``g`` is zero-padded once for all phases; per phase (a, b):
+    im2col of its window of that, one GEMM, and the result written to
+    ``z[:, a'::s, b'::s]`` pixel by pixel.
     """
     N, OH, OW, O = g.shape
     _, C, KH, KW = weight.shape
