@@ -96,7 +96,7 @@ def bench_update(repeat: int, threads: int) -> dict:
         per = torch.nn.functional.huber_loss(qsa, y, reduction="none", delta=1.0)
         return (per * mask).sum() / mask.sum()
 
-    ref = float(torch_loss())
+    ref = float(torch_loss().detach())
     if abs(ref - float(loss_ours.data)) > 1e-4 * max(1.0, abs(ref)):
         raise AssertionError(f"torch loss {ref} != ours {float(loss_ours.data)}")
 
