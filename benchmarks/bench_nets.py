@@ -241,7 +241,7 @@ def bench_train(repeat, torch, np, ag, threads):
 
     sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
     from bench_rl import bench_update
-    up = bench_update(repeat, threads)
+    up = bench_update(repeat, threads, clock=CLOCK)
     rows.append(_row("train: D3RQN update 32x5", up["ours_ms"], up.get("torch_ms")))
     return rows
 
