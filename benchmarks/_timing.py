@@ -18,7 +18,8 @@ child process with the three set to that count; the child gives torch the same n
 (``torch.set_num_threads``) and prints its results as its last line, in JSON.
 
 Options (``positive_int``, ``case_names``, ``thread_counts``): checked where they are
-read, a bad value refused in one line naming the option. Tables (``print_table``,
+read, a bad value refused in one line naming the option; ``cases_over_threads`` is the
+whole command line of a script that times cases at some thread counts. Tables (``print_table``,
 ``fmt``): fixed-width columns, then free notes.
 """
 from __future__ import annotations
@@ -116,6 +117,38 @@ def load_torch(threads: int):
         return None
     torch.set_num_threads(threads)
     return torch
+
+
+def cases_over_threads(argv, doc: str, script: str, known, worker, print_rows,
+                       repeat_help: str, json_option: bool = False) -> None:
+    """The command line of a script that times ``known`` cases at some thread counts:
+    ``--threads``, ``--cases``, ``--repeat``, ``--clock`` (and ``--json``). It re-runs
+    ``script`` once per thread count (``run_child``), where ``worker(threads, cases,
+    repeat, clock)`` returns the rows, and prints them with ``print_rows(rows, repeat,
+    clock)``."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("--threads", default="1,2",
+                        help="comma-separated thread counts, one child process each")
+    parser.add_argument("--cases", default=",".join(known), help=f"from {','.join(known)}")
+    parser.add_argument("--repeat", type=positive_int, default=10, help=repeat_help)
+    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                        help="wall clock, or the process's CPU time (one thread only)")
+    if json_option:
+        parser.add_argument("--json", action="store_true", help="print the rows as JSON lines")
+    parser.add_argument("--worker", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    cases = case_names(parser, args.cases, known)
+    if args.worker is not None:
+        print(json.dumps(worker(args.worker, cases, args.repeat, args.clock)))
+        return
+    rows = []
+    for n in thread_counts(parser, args.threads, args.clock):
+        rows += run_child(script, n, ["--worker", str(n), "--cases", ",".join(cases),
+                                      "--repeat", str(args.repeat), "--clock", args.clock])
+    if json_option and args.json:
+        for r in rows:
+            print(json.dumps(r))
+    print_rows(rows, args.repeat, args.clock)
 
 
 # -- tables ------------------------------------------------------------------------------

@@ -40,14 +40,11 @@ Cases (all written twice below, once with ``minid3rqn.autograd`` and once with t
 """
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import sys
 import time
 
-from _timing import (CLOCKS, case_names, fmt, load_torch, measure, positive_int,
-                     print_table, run_child, thread_counts)
+from _timing import CLOCKS, cases_over_threads, fmt, load_torch, measure, print_table
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CASES = ("dispnet", "dispnet-sfm", "qnet", "sample", "gemm")
@@ -399,25 +396,8 @@ def print_rows(rows, repeat: int, clock: str) -> None:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--threads", default="1,2",
-                        help="comma-separated thread counts, one child process each")
-    parser.add_argument("--cases", default=",".join(CASES), help=f"from {','.join(CASES)}")
-    parser.add_argument("--repeat", type=positive_int, default=10,
-                        help="timed runs per measurement")
-    parser.add_argument("--clock", choices=("wall", "cpu"), default="wall",
-                        help="wall clock, or the process's CPU time (one thread only)")
-    parser.add_argument("--worker", type=int, help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    cases = case_names(parser, args.cases, CASES)
-    if args.worker is not None:
-        print(json.dumps(worker(args.worker, cases, args.repeat, args.clock)))
-        return
-    rows = []
-    for n in thread_counts(parser, args.threads, args.clock):
-        rows += run_child(__file__, n, ["--worker", str(n), "--cases", ",".join(cases),
-                                        "--repeat", str(args.repeat), "--clock", args.clock])
-    print_rows(rows, args.repeat, args.clock)
+    cases_over_threads(argv, __doc__, __file__, CASES, worker, print_rows,
+                       "timed runs per measurement")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ def _killed_once(folder, task):
     return task * 10
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture
 def killed_once():
     """For an executor's ``run(killed_once, tasks, folder)``: task 1 loses its worker once."""
     return _killed_once
