@@ -141,22 +141,30 @@ def add_arguments_train_agent(p: argparse.ArgumentParser) -> None:
 
 
 def run_train_agent(args) -> int:
-    from .models import command_for
     from .train import SMOKE, TrainConfig, train
     cfg = from_args(TrainConfig, args, base=TrainConfig(**SMOKE) if args.smoke else None)
     name = f"{cfg.variant}_{cfg.scenario}_{cfg.depth}_s{cfg.seed}"
     out = Path(args.out) if args.out else RUNS / "agent" / (("smoke_" if args.smoke else "") + name)
-    est = _estimator(cfg.depth, args.depth_model, cfg.scenario)
-    if not _resumes(args, out):          # a resumed run starts from its checkpoint instead
-        _check_init_model(cfg)
-    depth_file = _depth_file(cfg.depth, args.depth_model, cfg.scenario)
+    return _run_training(args, out, cfg, cfg, train)
+
+
+def _run_training(args, out: Path, cfg, t, run_fn, widen: bool = False) -> int:
+    """What train-agent and distil do once their config ``cfg`` (training settings ``t``)
+    is read: the depth model loaded, ``--init-model`` checked (a fresh run only: a resumed
+    run starts from its checkpoint), the run folder held and claimed, ``run_fn`` trained
+    and the model written."""
+    from .models import command_for
+    est = _estimator(t.depth, args.depth_model, t.scenario)
+    if not _resumes(args, out):
+        _check_init_model(t, widen=widen)
+    depth_file = _depth_file(t.depth, args.depth_model, t.scenario)
     with hold(check_output(out, "--out", folder=True), "--out"):
-        how = _claim(out, args, cfg, cfg, depth_file)
+        how = _claim(out, args, cfg, t, depth_file)
         if how == "finished":
             return 0
         t0 = time.time()
-        run = train(cfg, out, est, progress=_progress(), resume=how == "resume",
-                    settings={"depth_model": depth_file})
+        run = run_fn(cfg, out, est, progress=_progress(), resume=how == "resume",
+                     settings={"depth_model": depth_file})
         return _trained(run, command_for(cfg, out, args.depth_model), args.depth_model, t0)
 
 
@@ -170,7 +178,6 @@ def add_arguments_distil(p: argparse.ArgumentParser) -> None:
 def run_distil(args) -> int:
     from ..world import ACTIONS, Camera
     from .distill import DISTIL_OPTIONS, DistilConfig, distil, load_teacher, student
-    from .models import command_for
     from .train import SMOKE
     base = DistilConfig(teacher_mix_steps=64, train=replace(student(), **SMOKE)) \
         if args.smoke else None
@@ -188,18 +195,7 @@ def run_distil(args) -> int:
         raise UsageError(f"--teachers: {message}") from None
     out = Path(args.out) if args.out else \
         RUNS / "distil" / (("smoke_" if args.smoke else "") + f"{t.scenario}_{t.depth}_s{t.seed}")
-    est = _estimator(t.depth, args.depth_model, t.scenario)
-    if not _resumes(args, out):
-        _check_init_model(t, widen=cfg.init_widen)
-    depth_file = _depth_file(t.depth, args.depth_model, t.scenario)
-    with hold(check_output(out, "--out", folder=True), "--out"):
-        how = _claim(out, args, cfg, t, depth_file)
-        if how == "finished":
-            return 0
-        t0 = time.time()
-        run = distil(cfg, out, est, progress=_progress(), resume=how == "resume",
-                     settings={"depth_model": depth_file})
-        return _trained(run, command_for(cfg, out, args.depth_model), args.depth_model, t0)
+    return _run_training(args, out, cfg, t, distil, widen=cfg.init_widen)
 
 
 # -- evaluate --------------------------------------------------------------------------------
